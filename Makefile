@@ -1,0 +1,28 @@
+# Two entry points for a fresh clone (see README): `make demo` and `make test`.
+# Both create the virtual environment first if it is missing or out of date.
+PYTHON ?= python3.11
+VENV   := .venv
+BIN    := $(VENV)/bin
+OUT    ?= out/demo
+
+.PHONY: demo test bench venv clean
+
+venv: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[test]'
+	touch $@
+
+demo: venv
+	$(BIN)/telesmooth demo --out $(OUT)
+
+test: venv
+	$(BIN)/python -m pytest -q
+
+bench: venv
+	$(BIN)/python -m telesmooth.scripts.bench_core --out out/bench
+
+clean:
+	rm -rf $(VENV) out .pytest_cache .hypothesis

@@ -1,0 +1,203 @@
+"""The ``telesmooth`` command line.
+
+Subcommands:
+    smooth   smooth a joint trajectory CSV with one method (the contract in the README)
+    demo     the main job: a real human demonstration (LASA) through every method, with a report
+
+Errors in user input are printed as one clear line (exit status 2); nothing is written then.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from telesmooth.smoothing.methods import METHODS, SmoothingSettings, smooth_recording
+from telesmooth.smoothing.metrics import smoothing_metrics
+from telesmooth.smoothing.model import DEFAULT_LAG, DEFAULT_R, DEFAULT_SIGMA
+from telesmooth.smoothing.offline import OFFLINE_CONSTRAINTS
+from telesmooth.smoothing.reduced_q import (
+    REDUCED_Q_VARIANTS,
+    SIGMA_STEP_RULES,
+    VIOLATION_TRIGGERS,
+    ReducedQConfig,
+    load_operator_sigma,
+    save_operator_sigma,
+)
+from telesmooth.smoothing.trajectory_io import read_joint_csv, write_joint_csv
+from telesmooth.smoothing.validation import as_per_joint
+
+
+def parse_per_joint(text: str):
+    """``"0.1"`` → 0.1; ``"0.1,0.2,0.3"`` → [0.1, 0.2, 0.3]; ``"a=0.1,b=0.2"`` → {a: 0.1, b: 0.2}."""
+    parts = [part.strip() for part in text.split(",")]
+    try:
+        if any("=" in part for part in parts):
+            pairs = [part.split("=", 1) for part in parts]
+            return {name.strip(): float(value) for name, value in pairs}
+        values = [float(part) for part in parts]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: give a number, a comma list (one per joint) or name=value pairs"
+        ) from None
+    return values[0] if len(values) == 1 else values
+
+
+def _add_smooth_parser(subparsers) -> None:
+    p = subparsers.add_parser(
+        "smooth",
+        help="smooth a joint trajectory CSV (t,<joints…>; s, rad; uniform step)",
+        description="Smooth an operator's joint trajectory so that acceleration and jerk stay "
+        "within the robot's limits. Limits take one value for all joints, a comma list "
+        "(one per joint, in column order) or name=value pairs.",
+    )
+    p.add_argument("input", type=Path, help="input CSV: header t,<joint names…>")
+    p.add_argument("-o", "--output", type=Path, required=True, help="output CSV")
+    p.add_argument("--method", choices=METHODS, default="online-cks")
+    p.add_argument("--acc-max", type=parse_per_joint, required=True, metavar="A",
+                   help="acceleration limit a_max [rad/s²]")
+    p.add_argument("--jerk-max", type=parse_per_joint, required=True, metavar="J",
+                   help="jerk limit j_max [rad/s³]")
+    p.add_argument("--vel-max", type=parse_per_joint, default=None, metavar="V",
+                   help="velocity limit v_max [rad/s] (offline-cks trajectory mode)")
+    p.add_argument("--constraint", choices=OFFLINE_CONSTRAINTS[:2], default="state",
+                   help="offline-cks: 'state' (the paper's state box, soft) or 'trajectory' "
+                   "(hard limits on the finite differences of the sent positions)")
+    p.add_argument("--rest-at-end", action="store_true", help="offline-cks: end at rest")
+    p.add_argument("--dt", type=float, default=None, metavar="S",
+                   help="expected sample period [s]; the file's time step must match it")
+    p.add_argument("--lag", type=int, default=DEFAULT_LAG, metavar="L",
+                   help=f"fixed lag in samples for bmfls/online-cks (default {DEFAULT_LAG})")
+    p.add_argument("--sigma", type=parse_per_joint, default=DEFAULT_SIGMA, metavar="S",
+                   help=f"jounce intensity σ_0 [rad²/s⁷] (default {DEFAULT_SIGMA:g})")
+    p.add_argument("--r", type=parse_per_joint, default=DEFAULT_R, metavar="R",
+                   help=f"position measurement variance [rad²] (default {DEFAULT_R:g})")
+    p.add_argument("--variant", choices=REDUCED_Q_VARIANTS, default="A",
+                   help="online-cks reduced-Q variant (default A)")
+    p.add_argument("--sigma-step", choices=SIGMA_STEP_RULES, default="multiplicative",
+                   help="online-cks σ step rule (default multiplicative)")
+    p.add_argument("--rho", type=float, default=0.8, help="multiplicative σ factor (0.8)")
+    p.add_argument("--sigma-min", type=float, default=None, help="σ_min (default 2.5e-4 σ_0)")
+    p.add_argument("--trigger", choices=VIOLATION_TRIGGERS, default="state",
+                   help="online-cks trigger: output block states or FD of sent positions")
+    p.add_argument("--operator", default=None,
+                   help="online-cks: operator name whose σ is loaded from/saved to --sigma-store")
+    p.add_argument("--sigma-store", type=Path, default=None,
+                   help="JSON file of per-operator σ (loaded as σ_0 if present, updated after)")
+    p.add_argument("--link-lengths", type=parse_per_joint, default=None, metavar="L1,L2,…",
+                   help="planar link lengths [m]: adds the Cartesian deformation to --metrics")
+    p.add_argument("--metrics", type=Path, default=None, metavar="OUT.json",
+                   help="write the SPEC §6 metrics as JSON")
+    p.set_defaults(handler=run_smooth)
+
+
+def run_smooth(args) -> int:
+    trajectory = read_joint_csv(args.input, expected_dt_s=args.dt)
+    names = list(trajectory.joint_names)
+    settings = SmoothingSettings(
+        max_acceleration=as_per_joint("--acc-max", args.acc_max, len(names), names),
+        max_jerk=as_per_joint("--jerk-max", args.jerk_max, len(names), names),
+        max_velocity=(None if args.vel_max is None
+                      else as_per_joint("--vel-max", args.vel_max, len(names), names)),
+        sigma=as_per_joint("--sigma", args.sigma, len(names), names),
+        r=as_per_joint("--r", args.r, len(names), names),
+        lag=args.lag,
+        constraint=args.constraint,
+        rest_at_end=args.rest_at_end,
+        reduced_q=ReducedQConfig(variant=args.variant, step_rule=args.sigma_step, rho=args.rho,
+                                 sigma_min=args.sigma_min, trigger=args.trigger),
+    )
+    if (args.operator is None) != (args.sigma_store is None):
+        raise ValueError("--operator and --sigma-store go together")
+    if args.link_lengths is not None:
+        link_lengths = as_per_joint("--link-lengths", args.link_lengths, len(names), names)
+    sigma0 = None
+    if args.operator is not None and args.sigma_store.exists():
+        sigma0 = load_operator_sigma(args.sigma_store, args.operator, names)
+        print(f"operator {args.operator!r}: σ_0 = {sigma0.tolist()} from {args.sigma_store}",
+              file=sys.stderr)
+    result = smooth_recording(trajectory.positions, trajectory.dt_s, args.method, settings,
+                              joint_names=names, sigma0=sigma0)
+    write_joint_csv(args.output, trajectory.t_s, result.positions, names,
+                    extra_columns={"sent_t": trajectory.t_s + result.sent_delay_s})
+    print(f"wrote {args.output} ({len(trajectory.t_s)} samples, method {args.method})",
+          file=sys.stderr)
+    if args.metrics is not None:
+        forward_kinematics = None
+        if args.link_lengths is not None:
+            from telesmooth.arms.planar import planar_forward_kinematics
+
+            def forward_kinematics(q):
+                return planar_forward_kinematics(q, tuple(link_lengths))
+        metrics = smoothing_metrics(
+            smoothed_positions=result.positions,
+            original_positions=trajectory.positions,
+            dt_s=trajectory.dt_s,
+            max_acceleration=settings.max_acceleration,
+            max_jerk=settings.max_jerk,
+            max_velocity=settings.max_velocity,
+            smoothed_states=result.states,
+            forward_kinematics=forward_kinematics,
+            joint_names=names,
+        )
+        metrics["method"] = args.method
+        metrics["sent_delay_s"] = result.sent_delay_s
+        metrics["details"] = result.details
+        if result.final_sigma is not None:
+            metrics["final_sigma"] = result.final_sigma.tolist()
+        args.metrics.parent.mkdir(parents=True, exist_ok=True)
+        args.metrics.write_text(json.dumps(metrics, indent=2) + "\n")
+        print(f"wrote {args.metrics}", file=sys.stderr)
+    if args.operator is not None and result.final_sigma is not None:
+        save_operator_sigma(args.sigma_store, args.operator, names, result.final_sigma)
+        print(f"operator {args.operator!r}: σ = {result.final_sigma.tolist()} saved to "
+              f"{args.sigma_store}", file=sys.stderr)
+    return 0
+
+
+def _add_demo_parser(subparsers) -> None:
+    p = subparsers.add_parser(
+        "demo",
+        help="smooth a real human demonstration (LASA) with every method and write a report",
+    )
+    p.add_argument("--out", type=Path, default=Path("out/demo"), help="report folder")
+    p.add_argument("--shape", default="Angle", help="LASA shape (default Angle)")
+    p.add_argument("--demo-index", type=int, default=0, help="demonstration 0–6 (default 0)")
+    p.set_defaults(handler=run_demo)
+
+
+def run_demo(args) -> int:
+    from telesmooth.scripts.demo_report import write_demo_report
+
+    report = write_demo_report(args.out, shape=args.shape, demo_index=args.demo_index)
+    print(f"report: {report}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="telesmooth",
+        description="Acceleration/jerk-limited Kalman smoothing for delayed teleoperation.",
+    )
+    subparsers = parser.add_subparsers(dest="command", required=True)
+    _add_smooth_parser(subparsers)
+    _add_demo_parser(subparsers)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.handler(args)
+    except (ValueError, RuntimeError) as error:
+        print(f"telesmooth {args.command}: error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

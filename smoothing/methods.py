@@ -1,0 +1,191 @@
+"""Every smoothing method of the paper behind one call, aligned sample by sample (SPEC §7).
+
+``smooth_recording`` returns, for each input sample k, the estimate of that sample and the delay
+after which the ground station sends it:
+
+=================  ==============================================  ===========================
+method             estimate of sample k                            sent after
+=================  ==============================================  ===========================
+``original``       z_k                                             0
+``kf``             x̂_{k|k}, the a-posteriori Kalman filter          0 (with filter phase lag)
+``kf-predictor``   x̂_{k|k−1}, the one-step predictor                0
+``offline-ks``     RTS over the whole recording                    offline (replayed from t_0)
+``offline-cks``    Offline-CKS, Drake MathematicalProgram          offline (replayed from t_0)
+``bmfls``          x̂_{k|k+L}, fixed-lag, constant σ_0               L Δt
+``online-cks``     x̂_{k|k+L}, fixed-lag with reduced-Q σ_k          L Δt
+=================  ==============================================  ===========================
+
+For the fixed-lag methods the operator is taken to hold the last pose after the recording ends
+(L extra copies of the last sample), so every sample gets an estimate.
+All methods share Φ, Q(σ_0), r and the rest start at z_0.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from telesmooth.smoothing.fixed_lag import FixedLagSmoother
+from telesmooth.smoothing.kalman import kalman_filter, rest_prior, rts_smoother
+from telesmooth.smoothing.model import DEFAULT_LAG, DEFAULT_R, DEFAULT_SIGMA, JerkModel
+from telesmooth.smoothing.offline import solve_offline_cks
+from telesmooth.smoothing.reduced_q import OnlineCks, ReducedQConfig
+from telesmooth.smoothing.validation import (
+    as_per_joint,
+    check_positive_int,
+    check_positive_scalar,
+    check_trajectory,
+)
+
+METHODS = ("original", "kf", "kf-predictor", "offline-ks", "offline-cks", "bmfls", "online-cks")
+FIXED_LAG_METHODS = ("bmfls", "online-cks")
+OFFLINE_METHODS = ("offline-ks", "offline-cks")
+
+
+@dataclass(frozen=True)
+class SmoothingSettings:
+    """Everything a method needs besides the data; per-joint values may be scalars.
+
+    Attributes:
+        max_acceleration: a_max [rad/s²] (scalar, sequence or {joint: value}).
+        max_jerk: j_max [rad/s³].
+        max_velocity: v_max [rad/s] for Offline-CKS trajectory mode; None = no limit.
+        sigma: σ_0 [rad²/s⁷] (the operator's jounce intensity).
+        r: measurement variance [rad²].
+        lag: L [samples] for the fixed-lag methods.
+        constraint: Offline-CKS mode, "state" (paper) or "trajectory" (hard FD limits) etc.
+        rest_at_end: Offline-CKS ends at rest.
+        fixed_lag_method: "recursion" or "superstate".
+        reduced_q: reduced-Q settings for Online-CKS.
+        offline_tolerance: Clarabel tolerances for Offline-CKS.
+    """
+
+    max_acceleration: object = np.inf
+    max_jerk: object = np.inf
+    max_velocity: object = None
+    sigma: object = DEFAULT_SIGMA
+    r: object = DEFAULT_R
+    lag: int = DEFAULT_LAG
+    constraint: str = "state"
+    rest_at_end: bool = False
+    fixed_lag_method: str = "recursion"
+    reduced_q: ReducedQConfig = field(default_factory=ReducedQConfig)
+    offline_tolerance: float = 1e-12
+
+
+@dataclass(frozen=True, eq=False)
+class SmoothedRecording:
+    """One method's result, aligned with the input samples.
+
+    Attributes:
+        method: the method name.
+        positions: estimate of each input sample [rad], shape (N, num_joints).
+        states: full state estimates (N, num_joints, 4), or None for ``original``.
+        sent_delay_s: how long after sample k its command leaves the ground station [s].
+        sigma: σ per step for Online-CKS (N, num_joints) (σ in effect after step k), else None.
+        final_sigma: the σ an Online-CKS operator reached (num_joints,), else None.
+        details: method-specific information (solver status for Offline-CKS).
+    """
+
+    method: str
+    positions: np.ndarray
+    states: np.ndarray | None
+    sent_delay_s: float
+    sigma: np.ndarray | None = None
+    final_sigma: np.ndarray | None = None
+    details: dict = field(default_factory=dict)
+
+
+def smooth_recording(
+    positions,
+    dt_s: float,
+    method: str,
+    settings: SmoothingSettings = SmoothingSettings(),
+    *,
+    joint_names=None,
+    sigma0=None,
+) -> SmoothedRecording:
+    """Runs one method on a recording.
+
+    Args:
+        positions: the operator's joint samples z_k, shape (N, num_joints) [rad].
+        dt_s: sample period [s].
+        method: one of METHODS.
+        settings: limits and tuning.
+        joint_names: labels for error messages and per-name settings.
+        sigma0: Online-CKS only: the operator's stored σ (overrides settings.sigma as σ_0).
+
+    Raises:
+        ValueError: unknown method or invalid input/settings (naming the field and joint).
+        RuntimeError: Offline-CKS did not solve (with the solver's status).
+    """
+    if method not in METHODS:
+        raise ValueError(f"method = {method!r} must be one of {METHODS}")
+    z = check_trajectory("positions", positions, joint_names=joint_names, min_samples=2)
+    num_joints = z.shape[1]
+    dt_s = check_positive_scalar("dt_s", dt_s)
+    lag = check_positive_int("lag", settings.lag, minimum=0)
+    model = JerkModel.make(dt_s, settings.sigma, settings.r, num_joints=num_joints,
+                           joint_names=joint_names)
+    if method == "original":
+        return SmoothedRecording(method, z.copy(), None, 0.0)
+    if method in ("kf", "kf-predictor"):
+        result = kalman_filter(z, model, rest_prior(z[0], model))
+        states = result.filtered_mean if method == "kf" else result.predicted_mean
+        return SmoothedRecording(method, states[:, :, 0].copy(), states, 0.0)
+    if method == "offline-ks":
+        states = rts_smoother(z, model, rest_prior(z[0], model)).mean
+        return SmoothedRecording(method, states[:, :, 0].copy(), states, 0.0)
+    if method == "offline-cks":
+        result = solve_offline_cks(
+            z, model,
+            max_acceleration=settings.max_acceleration,
+            max_jerk=settings.max_jerk,
+            max_velocity=settings.max_velocity,
+            constraint=settings.constraint,
+            rest_at_end=settings.rest_at_end,
+            joint_names=joint_names,
+            tolerance=settings.offline_tolerance,
+        )
+        details = {
+            "constraint": settings.constraint,
+            "solver": result.solver_name,
+            "solution_results": list(result.solution_results),
+            "solve_time_s": result.solve_time_s.tolist(),
+            "build_time_s": result.build_time_s.tolist(),
+        }
+        if not result.is_success:
+            raise RuntimeError(
+                f"Offline-CKS failed: {dict(zip(joint_names or range(num_joints), result.solution_results))}; "
+                f"violated constraints: {result.infeasible_constraints}"
+            )
+        return SmoothedRecording(method, result.states[:, :, 0].copy(), result.states, 0.0,
+                                 details=details)
+    # Fixed-lag methods: the operator holds the last pose for L more samples.
+    padded = np.vstack([z, np.repeat(z[-1:], lag, axis=0)])
+    if method == "bmfls":
+        outputs = FixedLagSmoother(model, lag=lag, method=settings.fixed_lag_method).run(padded)
+        states = outputs[lag:]
+        return SmoothedRecording(method, states[:, :, 0].copy(), states, lag * dt_s,
+                                 details={"lag": lag})
+    online = OnlineCks(
+        model,
+        max_acceleration=settings.max_acceleration,
+        max_jerk=settings.max_jerk,
+        lag=lag,
+        config=settings.reduced_q,
+        method=settings.fixed_lag_method,
+        joint_names=joint_names,
+    )
+    if sigma0 is not None:
+        sigma0 = as_per_joint("sigma0", sigma0, num_joints, joint_names)
+    run = online.run(padded, sigma0=sigma0)
+    states = run.outputs[lag:]
+    return SmoothedRecording(
+        method, states[:, :, 0].copy(), states, lag * dt_s,
+        sigma=run.sigma[lag:], final_sigma=run.final_state.sigma.copy(),
+        details={"lag": lag, "variant": settings.reduced_q.variant,
+                 "step_rule": settings.reduced_q.step_rule,
+                 "cycles_triggered": run.triggered.sum(axis=0).tolist()},
+    )

@@ -1,0 +1,155 @@
+"""Joint trajectory CSV files: ``t,<joint names…>`` in seconds and radians, uniform time step.
+
+Reading checks everything a user can get wrong and says where: the header, the joint names,
+every value (row number as in the file, column name, value), and the time step.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+TIME_STEP_RTOL = 1e-6
+"""Relative tolerance on the uniformity of the time column."""
+DEGREES_SUSPICION_RAD = 4.0 * math.pi
+"""Joint values beyond this suggest degrees instead of radians (a warning, not an error)."""
+
+
+@dataclass(frozen=True, eq=False)
+class JointTrajectory:
+    """A uniformly sampled joint trajectory.
+
+    Attributes:
+        t_s: sample times [s], shape (N,).
+        positions: joint positions [rad], shape (N, num_joints).
+        joint_names: one name per column.
+    """
+
+    t_s: np.ndarray
+    positions: np.ndarray
+    joint_names: tuple
+
+    @property
+    def dt_s(self) -> float:
+        return float((self.t_s[-1] - self.t_s[0]) / (len(self.t_s) - 1))
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.joint_names)
+
+
+def read_joint_csv(path, *, expected_dt_s: float | None = None) -> JointTrajectory:
+    """Reads and validates a joint trajectory CSV.
+
+    Args:
+        path: the file.
+        expected_dt_s: if given, the file's time step must equal it (relative 1e-6).
+
+    Raises:
+        ValueError: missing/odd header, duplicate or empty joint names, short rows, values that
+            are not finite numbers, fewer than 2 rows, a non-increasing or non-uniform time
+            column, or a time step different from ``expected_dt_s``.
+    """
+    path = Path(path)
+    try:
+        with path.open(newline="") as handle:
+            rows = list(csv.reader(handle))
+    except OSError as error:
+        raise ValueError(f"{path}: cannot read ({error.strerror})") from None
+    rows = [row for row in rows if row and any(cell.strip() for cell in row)]
+    if not rows:
+        raise ValueError(f"{path}: the file is empty; expected a header 't,<joint names…>'")
+    header = [cell.strip() for cell in rows[0]]
+    if header[0] != "t":
+        raise ValueError(
+            f"{path}: the first header column is {header[0]!r}; it must be 't' (seconds), "
+            "followed by one column per joint (radians)"
+        )
+    names = header[1:]
+    if not names:
+        raise ValueError(f"{path}: the header names no joint columns after 't'")
+    for index, name in enumerate(names):
+        if not name:
+            raise ValueError(f"{path}: joint column {index + 1} has an empty name")
+    duplicates = sorted({name for name in names if names.count(name) > 1})
+    if duplicates:
+        raise ValueError(f"{path}: duplicate joint column name(s) {duplicates}")
+    data = np.empty((len(rows) - 1, len(header)))
+    for row_index, row in enumerate(rows[1:], start=2):
+        if len(row) != len(header):
+            raise ValueError(
+                f"{path}: line {row_index} has {len(row)} value(s); the header has {len(header)}"
+            )
+        for col, cell in enumerate(row):
+            column = header[col]
+            try:
+                value = float(cell)
+            except ValueError:
+                raise ValueError(
+                    f"{path}: line {row_index}, column {column!r}: {cell.strip()!r} is not a number"
+                ) from None
+            if not math.isfinite(value):
+                raise ValueError(
+                    f"{path}: line {row_index}, column {column!r}: value {cell.strip()!r} is not "
+                    "finite"
+                )
+            data[row_index - 2, col] = value
+    if data.shape[0] < 2:
+        raise ValueError(f"{path}: {data.shape[0]} data row(s); at least 2 are needed")
+    t = data[:, 0]
+    check_uniform_time(t, source=str(path), expected_dt_s=expected_dt_s)
+    positions = data[:, 1:]
+    large = np.abs(positions).max(axis=0) > DEGREES_SUSPICION_RAD
+    for index in np.flatnonzero(large):
+        print(
+            f"warning: {path}: joint {names[index]!r} reaches "
+            f"{np.abs(positions[:, index]).max():.3g} rad; values are read as radians "
+            "(were degrees meant?)",
+            file=sys.stderr,
+        )
+    return JointTrajectory(t_s=t, positions=positions, joint_names=tuple(names))
+
+
+def check_uniform_time(t_s, *, source: str = "t", expected_dt_s: float | None = None) -> float:
+    """Checks a strictly increasing, uniform time column; returns its step [s]."""
+    t = np.asarray(t_s, dtype=float)
+    steps = np.diff(t)
+    if np.any(steps <= 0):
+        bad = int(np.flatnonzero(steps <= 0)[0])
+        raise ValueError(
+            f"{source}: time must increase; t = {t[bad + 1]!r} at data row {bad + 2} follows "
+            f"t = {t[bad]!r}"
+        )
+    dt = float((t[-1] - t[0]) / (len(t) - 1))
+    deviation = np.abs(steps - dt)
+    if np.any(deviation > TIME_STEP_RTOL * dt + 1e-12):
+        bad = int(np.argmax(deviation))
+        raise ValueError(
+            f"{source}: the time step must be uniform; step {steps[bad]!r} s between data rows "
+            f"{bad + 1} and {bad + 2} differs from the mean step {dt!r} s (resample first)"
+        )
+    if expected_dt_s is not None and abs(dt - expected_dt_s) > TIME_STEP_RTOL * expected_dt_s:
+        raise ValueError(
+            f"{source}: the time step is {dt!r} s but --dt {expected_dt_s!r} s was given"
+        )
+    return dt
+
+
+def write_joint_csv(path, t_s, positions, joint_names, *, extra_columns=None) -> None:
+    """Writes ``t,<joints…>[,extra…]`` with full float precision (repr round-trips exactly)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    positions = np.asarray(positions, dtype=float)
+    extra_columns = dict(extra_columns or {})
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["t", *joint_names, *extra_columns])
+        extras = [np.asarray(v, dtype=float) for v in extra_columns.values()]
+        for k, t in enumerate(np.asarray(t_s, dtype=float)):
+            writer.writerow([repr(float(t)), *(repr(float(v)) for v in positions[k]),
+                             *(repr(float(v[k])) for v in extras)])
