@@ -86,7 +86,7 @@ def _sigma_rows(model: JerkModel, sigma_schedule, num_samples: int) -> np.ndarra
     if not np.all(np.isfinite(schedule[1:])) or np.any(schedule[1:] <= 0):
         row, col = np.argwhere(~(np.isfinite(schedule[1:]) & (schedule[1:] > 0)))[0]
         raise ValueError(
-            f"sigma_schedule[{row + 1}, {col}] = {schedule[row + 1, col]!r} for joint {col} "
+            f"sigma_schedule[{row + 1}, {col}] = {float(schedule[row + 1, col])!r} for joint {col} "
             "must be finite and > 0"
         )
     return schedule
