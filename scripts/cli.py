@@ -27,6 +27,7 @@ from telesmooth.smoothing.reduced_q import (
     ReducedQConfig,
     load_operator_sigma,
     save_operator_sigma,
+    stored_operators,
 )
 from telesmooth.smoothing.trajectory_io import read_joint_csv, write_joint_csv
 from telesmooth.smoothing.validation import as_per_joint
@@ -116,10 +117,12 @@ def run_smooth(args) -> int:
     if args.link_lengths is not None:
         link_lengths = as_per_joint("--link-lengths", args.link_lengths, len(names), names)
     sigma0 = None
-    if args.operator is not None and args.sigma_store.exists():
+    if args.operator is not None and args.operator in stored_operators(args.sigma_store):
         sigma0 = load_operator_sigma(args.sigma_store, args.operator, names)
         print(f"operator {args.operator!r}: σ_0 = {sigma0.tolist()} from {args.sigma_store}",
               file=sys.stderr)
+    elif args.operator is not None:
+        print(f"operator {args.operator!r}: new operator, σ_0 = --sigma", file=sys.stderr)
     result = smooth_recording(trajectory.positions, trajectory.dt_s, args.method, settings,
                               joint_names=names, sigma0=sigma0)
     write_joint_csv(args.output, trajectory.t_s, result.positions, names,

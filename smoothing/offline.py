@@ -217,13 +217,32 @@ def solve_offline_cks(
             solve_times.append(0.0)
             reached.append(0.0)
             continue
-        for tol, equilibrate in ((tol, eq) for tol in ladder for eq in (True, False)):
-            for key in ("tol_gap_abs", "tol_gap_rel", "tol_feas"):
-                options.SetOption(solver.solver_id(), key, float(tol))
-            options.SetOption(solver.solver_id(), "equilibrate_enable", equilibrate)
-            result = solver.Solve(prog, None, options)
-            if result.is_success():
+        # Solve; then check the limits on the result itself and, if the solver's tolerance
+        # left a violation above 1e-7 of a limit, tighten the limits by twice that and solve
+        # again (a back-off), so that what is returned meets the limits it promises.
+        shrink = 1.0
+        for _attempt in range(4):
+            if shrink != 1.0:
+                prog, delta = _build_program(
+                    z[:, j], reference[:, j], model, j, names[j], prior, q_start[j],
+                    acc[j] * shrink, jerk[j] * shrink, vel[j] * shrink, constraint,
+                    rest_at_end, block_size,
+                )
+            for tol, equilibrate in ((tol, eq) for tol in ladder for eq in (True, False)):
+                for key in ("tol_gap_abs", "tol_gap_rel", "tol_feas"):
+                    options.SetOption(solver.solver_id(), key, float(tol))
+                options.SetOption(solver.solver_id(), "equilibrate_enable", equilibrate)
+                result = solver.Solve(prog, None, options)
+                if result.is_success():
+                    break
+            if not result.is_success():
                 break
+            positions = model.from_scaled(reference[:, j] + result.GetSolution(delta).T)
+            excess = _limit_excess(positions, q_start[j], dt, acc[j], jerk[j], vel[j],
+                                   constraint, rest_at_end)
+            if excess <= 1e-7:
+                break
+            shrink *= 1.0 - 2.0 * excess
         solve_times.append(result.get_solver_details().solve_time)
         results.append(result.get_solution_result().name)
         if result.is_success():
@@ -247,6 +266,26 @@ def solve_offline_cks(
         infeasible_constraints=tuple(infeasible),
         tolerance_reached=np.array(reached),
     )
+
+
+def _limit_excess(states, q_start, dt, acc, jerk, vel, constraint, rest_at_end) -> float:
+    """Largest relative excess max(|value| / limit − 1, 0) over the limits of ``constraint``,
+    evaluated on one joint's states (N, 4) in physical units."""
+    excess = 0.0
+
+    def worst(values, limit):
+        return float(np.max(np.abs(values)) / limit - 1.0) if np.isfinite(limit) and len(
+            values) else 0.0
+
+    if constraint in ("state", "both"):
+        excess = max(excess, worst(states[:, 2], acc), worst(states[:, 3], jerk))
+    if constraint in ("trajectory", "both"):
+        p = states[:, 0]
+        tail = np.repeat(p[-1:], HISTORY_LENGTH) if rest_at_end else np.zeros(0)
+        extended = np.concatenate([np.full(HISTORY_LENGTH, q_start), p, tail])
+        for order, limit in ((1, vel), (2, acc), (3, jerk)):
+            excess = max(excess, worst(np.diff(extended, n=order) / dt**order, limit))
+    return max(excess, 0.0)
 
 
 def _satisfies_all(prog: MathematicalProgram, values: np.ndarray, variables) -> bool:

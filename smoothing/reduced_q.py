@@ -292,6 +292,12 @@ def load_operator_sigma(path, operator: str, joint_names) -> np.ndarray:
     return as_per_joint(f"sigma of operator {operator!r}", stored, len(joint_names), list(joint_names))
 
 
+def stored_operators(path) -> list[str]:
+    """Names of the operators with a stored σ in ``path`` (empty if the file does not exist)."""
+    path = Path(path)
+    return sorted(_read_sigma_file(path)["operators"]) if path.exists() else []
+
+
 def _read_sigma_file(path: Path) -> dict:
     try:
         data = json.loads(path.read_text())

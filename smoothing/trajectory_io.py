@@ -61,10 +61,12 @@ def read_joint_csv(path, *, expected_dt_s: float | None = None) -> JointTrajecto
             rows = list(csv.reader(handle))
     except OSError as error:
         raise ValueError(f"{path}: cannot read ({error.strerror})") from None
-    rows = [row for row in rows if row and any(cell.strip() for cell in row)]
-    if not rows:
+    # Keep each row's line number in the file (blank lines are skipped, not renumbered).
+    numbered = [(line, row) for line, row in enumerate(rows, start=1)
+                if row and any(cell.strip() for cell in row)]
+    if not numbered:
         raise ValueError(f"{path}: the file is empty; expected a header 't,<joint names…>'")
-    header = [cell.strip() for cell in rows[0]]
+    header = [cell.strip() for cell in numbered[0][1]]
     if header[0] != "t":
         raise ValueError(
             f"{path}: the first header column is {header[0]!r}; it must be 't' (seconds), "
@@ -79,8 +81,8 @@ def read_joint_csv(path, *, expected_dt_s: float | None = None) -> JointTrajecto
     duplicates = sorted({name for name in names if names.count(name) > 1})
     if duplicates:
         raise ValueError(f"{path}: duplicate joint column name(s) {duplicates}")
-    data = np.empty((len(rows) - 1, len(header)))
-    for row_index, row in enumerate(rows[1:], start=2):
+    data = np.empty((len(numbered) - 1, len(header)))
+    for data_index, (row_index, row) in enumerate(numbered[1:]):
         if len(row) != len(header):
             raise ValueError(
                 f"{path}: line {row_index} has {len(row)} value(s); the header has {len(header)}"
@@ -98,7 +100,7 @@ def read_joint_csv(path, *, expected_dt_s: float | None = None) -> JointTrajecto
                     f"{path}: line {row_index}, column {column!r}: value {cell.strip()!r} is not "
                     "finite"
                 )
-            data[row_index - 2, col] = value
+            data[data_index, col] = value
     if data.shape[0] < 2:
         raise ValueError(f"{path}: {data.shape[0]} data row(s); at least 2 are needed")
     t = data[:, 0]
@@ -122,15 +124,15 @@ def check_uniform_time(t_s, *, source: str = "t", expected_dt_s: float | None = 
     if np.any(steps <= 0):
         bad = int(np.flatnonzero(steps <= 0)[0])
         raise ValueError(
-            f"{source}: time must increase; t = {t[bad + 1]!r} at data row {bad + 2} follows "
-            f"t = {t[bad]!r}"
+            f"{source}: time must increase; t = {float(t[bad + 1])!r} at data row {bad + 2} "
+            f"follows t = {float(t[bad])!r}"
         )
     dt = float((t[-1] - t[0]) / (len(t) - 1))
     deviation = np.abs(steps - dt)
     if np.any(deviation > TIME_STEP_RTOL * dt + 1e-12):
         bad = int(np.argmax(deviation))
         raise ValueError(
-            f"{source}: the time step must be uniform; step {steps[bad]!r} s between data rows "
+            f"{source}: the time step must be uniform; step {float(steps[bad])!r} s between data rows "
             f"{bad + 1} and {bad + 2} differs from the mean step {dt!r} s (resample first)"
         )
     if expected_dt_s is not None and abs(dt - expected_dt_s) > TIME_STEP_RTOL * expected_dt_s:

@@ -162,11 +162,6 @@ def test_non_finite_time_is_rejected(tmp_path):
         read_joint_csv(path)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="BUG: read_joint_csv drops blank lines before numbering rows, so after a blank "
-    "line the reported 'line N' is not the line number in the file (here 3 instead of 4)",
-)
 def test_line_number_counts_blank_lines(tmp_path):
     # Line 1 header, line 2 blank, line 3 good, line 4 bad.
     path = write_text(tmp_path, "t,a\n\n0.0,1.0\n0.25,oops\n")
@@ -218,11 +213,6 @@ def test_time_jitter_below_tolerance_is_accepted(tmp_path):
     assert dut.dt_s == pytest.approx(0.25, rel=1e-12)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="BUG: check_uniform_time formats numpy scalars with !r, so under numpy 2 the user "
-    "sees 'step np.float64(0.30000000000000004) s' / 't = np.float64(0.25)' in the message",
-)
 def test_time_error_messages_show_plain_numbers(tmp_path):
     rows = "".join(f"{t},0.1,0.2\n" for t in (0.0, 0.25, 0.5, 0.8, 1.0))
     path = write_text(tmp_path, VALID_HEADER + rows)

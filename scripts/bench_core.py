@@ -1,0 +1,154 @@
+"""Benchmark of the smoothing core: prints a table and writes JSON (``make bench``).
+
+Measured side by side in one run (this machine is noisy; compare ratios, not absolutes):
+
+* Offline-CKS for 6 joints at N = 10² … 10⁵ in both constraint modes, against one RTS pass
+  (filter + backward pass) on the same data: the floor any offline smoother pays.
+* The online fixed-lag step per 4 Hz tick for 6 joints at L = 3 and L = 75, superstate filter
+  against the exact recursion.
+
+Usage: ``python -m telesmooth.scripts.bench_core [--out DIR] [--max-n 100000] [--repeat 3]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from telesmooth.smoothing.fixed_lag import FixedLagSmoother
+from telesmooth.smoothing.kalman import rest_prior, rts_smoother
+from telesmooth.smoothing.model import DEFAULT_DT_S, DEFAULT_R, DEFAULT_SIGMA, JerkModel
+from telesmooth.smoothing.offline import solve_offline_cks
+
+NUM_JOINTS = 6
+MAX_ACCELERATION = 0.05
+MAX_JERK = 0.1
+
+
+def synthetic_operator(num_samples: int, num_joints: int, *, dt_s=DEFAULT_DT_S, seed=0):
+    """Minimum-jerk reaches of ±0.4 rad lasting 2–6 s with pauses, plus N(0, (1e-3 rad)²)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(num_samples) * dt_s
+    q = np.zeros((num_samples, num_joints))
+    for j in range(num_joints):
+        starts, position = [], 0.0
+        t0 = 0.0
+        while t0 < t[-1]:
+            duration = rng.uniform(2.0, 6.0)
+            target = np.clip(position + rng.uniform(-0.4, 0.4), -1.5, 1.5)
+            starts.append((t0, duration, target - position))
+            position, t0 = target, t0 + duration + rng.uniform(0.0, 2.0)
+        for t0, duration, step in starts:
+            s = np.clip((t - t0) / duration, 0.0, 1.0)
+            q[:, j] += step * (10 * s**3 - 15 * s**4 + 6 * s**5)
+    return q + 1e-3 * rng.standard_normal(q.shape)
+
+
+def _best_time(function, repeat):
+    best, value = np.inf, None
+    for _ in range(repeat):
+        start = time.perf_counter()
+        value = function()
+        best = min(best, time.perf_counter() - start)
+    return best, value
+
+
+def bench_offline(sizes, repeat):
+    rows = []
+    for n in sizes:
+        z = synthetic_operator(n, NUM_JOINTS, seed=n)
+        model = JerkModel.make(DEFAULT_DT_S, DEFAULT_SIGMA, DEFAULT_R, num_joints=NUM_JOINTS)
+        prior = rest_prior(z[0], model)
+        reps = repeat if n <= 10_000 else 1
+        rts_s, _ = _best_time(lambda: rts_smoother(z, model, prior), reps)
+        row = {"num_samples": n, "num_joints": NUM_JOINTS, "rts_s": rts_s}
+        for mode in ("state", "trajectory"):
+            seconds, result = _best_time(
+                lambda: solve_offline_cks(z, model, max_acceleration=MAX_ACCELERATION,
+                                          max_jerk=MAX_JERK, constraint=mode), reps)
+            row[f"{mode}_s"] = seconds
+            row[f"{mode}_over_rts"] = seconds / rts_s
+            row[f"{mode}_build_s"] = float(np.sum(result.build_time_s))
+            row[f"{mode}_solver_s"] = float(np.sum(result.solve_time_s))
+            row[f"{mode}_success"] = bool(result.is_success)
+            row[f"{mode}_tolerance_reached"] = result.tolerance_reached.tolist()
+        rows.append(row)
+        print(f"  offline N={n:>6}: RTS {rts_s:8.3f} s | state {row['state_s']:8.3f} s "
+              f"({row['state_over_rts']:5.1f}× RTS) | trajectory {row['trajectory_s']:8.3f} s "
+              f"({row['trajectory_over_rts']:5.1f}× RTS)", file=sys.stderr, flush=True)
+    return rows
+
+
+def bench_online(lags, ticks, repeat):
+    rows = []
+    z = synthetic_operator(ticks, NUM_JOINTS, seed=1)
+    model = JerkModel.make(DEFAULT_DT_S, DEFAULT_SIGMA, DEFAULT_R, num_joints=NUM_JOINTS)
+    for lag in lags:
+        row = {"lag": lag, "num_joints": NUM_JOINTS, "ticks": ticks}
+        for method in ("superstate", "recursion"):
+            smoother = FixedLagSmoother(model, lag=lag, method=method)
+
+            def stream():
+                state = smoother.initial_state(z[0])
+                for k in range(ticks):
+                    state = smoother.step(state, z[k])
+                return state
+
+            seconds, _ = _best_time(stream, repeat)
+            row[f"{method}_us_per_tick"] = 1e6 * seconds / ticks
+        row["superstate_over_recursion"] = (row["superstate_us_per_tick"]
+                                            / row["recursion_us_per_tick"])
+        rows.append(row)
+        print(f"  online L={lag:>3}: superstate {row['superstate_us_per_tick']:8.1f} µs/tick | "
+              f"recursion {row['recursion_us_per_tick']:8.1f} µs/tick", file=sys.stderr,
+              flush=True)
+    return rows
+
+
+def _table(offline, online) -> str:
+    lines = ["Offline-CKS, 6 joints (wall time incl. build; best of repeats)", "",
+             "| N | RTS pass [s] | state [s] | state / RTS | trajectory [s] | trajectory / RTS |",
+             "|---:|---:|---:|---:|---:|---:|"]
+    for r in offline:
+        lines.append(f"| {r['num_samples']} | {r['rts_s']:.4f} | {r['state_s']:.4f} | "
+                     f"{r['state_over_rts']:.1f} | {r['trajectory_s']:.4f} | "
+                     f"{r['trajectory_over_rts']:.1f} |")
+    lines += ["", "Online fixed-lag step, 6 joints", "",
+              "| L | superstate [µs/tick] | recursion [µs/tick] | superstate / recursion |",
+              "|---:|---:|---:|---:|"]
+    for r in online:
+        lines.append(f"| {r['lag']} | {r['superstate_us_per_tick']:.1f} | "
+                     f"{r['recursion_us_per_tick']:.1f} | {r['superstate_over_recursion']:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("out/bench"))
+    parser.add_argument("--max-n", type=int, default=100_000)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--ticks", type=int, default=2000)
+    args = parser.parse_args(argv)
+    sizes = [n for n in (100, 1_000, 10_000, 100_000) if n <= args.max_n]
+    print("telesmooth core benchmark", file=sys.stderr)
+    offline = bench_offline(sizes, args.repeat)
+    online = bench_online((3, 75), args.ticks, args.repeat)
+    report = {"machine": {"python": platform.python_version(), "processor": platform.machine()},
+              "offline_cks": offline, "online_step": online}
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "bench_core.json").write_text(json.dumps(report, indent=2) + "\n")
+    table = _table(offline, online)
+    (args.out / "bench_core.md").write_text(table)
+    print(table)
+    print(f"wrote {args.out / 'bench_core.json'}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
