@@ -75,7 +75,8 @@ class ReducedQConfig:
         ):
             if value not in allowed:
                 raise ValueError(f"{name} = {value!r} must be one of {allowed}")
-        if not (0.0 < float(self.rho) < 1.0):
+        if (isinstance(self.rho, bool) or not isinstance(self.rho, (int, float))
+                or not (0.0 < float(self.rho) < 1.0)):
             raise ValueError(f"rho = {self.rho!r} must be in (0, 1)")
         if self.delta_sigma is not None:
             check_positive_scalar("delta_sigma", self.delta_sigma)

@@ -19,6 +19,8 @@ def _joint_label(index: int, joint_names: Sequence[str] | None) -> str:
 
 def check_positive_scalar(field: str, value) -> float:
     """Returns ``float(value)`` if it is a finite number > 0, else raises ValueError."""
+    if isinstance(value, (bool, str)):
+        raise ValueError(f"{field} = {value!r} must be a number")
     try:
         number = float(value)
     except (TypeError, ValueError):
@@ -30,7 +32,8 @@ def check_positive_scalar(field: str, value) -> float:
 
 def check_positive_int(field: str, value, *, minimum: int = 1) -> int:
     """Returns ``int(value)`` if it is an integer ≥ ``minimum``, else raises ValueError."""
-    if isinstance(value, bool) or not float(value).is_integer() or int(value) < minimum:
+    if (isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating))
+            or not float(value).is_integer() or int(value) < minimum):
         raise ValueError(f"{field} = {value!r} must be an integer >= {minimum}")
     return int(value)
 

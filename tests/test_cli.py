@@ -350,6 +350,7 @@ def test_operator_sigma_is_created_then_loaded_and_never_increases(tmp_path, cap
     assert status == 0, stderr
     assert store.exists()
     assert "from" not in stderr  # nothing to load on the first run
+    assert "operator 'alice': new operator" in stderr
     assert f"saved to {store}" in stderr
     first = json.loads(store.read_text())["operators"]["alice"]
     assert sorted(first) == sorted(NAMES)

@@ -94,14 +94,6 @@ SOLVER_FAILURE_BUG = (
     "tolerance of the ladder), e.g. a 1 mrad step in 8 samples in trajectory mode; the "
     "process weight r/(σΔt⁷)·Q1⁻¹ ≈ 2.5e18·Q1⁻¹ leaves the QP too ill-conditioned"
 )
-FD_LIMIT_BUG = (
-    "BUG: at Δt = 0.1 s Offline-CKS trajectory mode reports success but its positions break "
-    "the hard FD limits by more than VIOLATION_RTOL = 1e-6 (jerk 1.0000278 × j_max on "
-    "z = [0,0,0,1,0,−1,0,1,1], a_max = j_max = 1; up to ~2 % on random recordings): the "
-    "solver's feasibility tolerance is not small against a_max Δt², j_max Δt³"
-)
-
-
 def check_method(method, case):
     dt, z, acc, jerk, vel = case
     result = smooth_recording(
@@ -156,28 +148,29 @@ def check_trajectory_mode(case, rest_at_end):
     assert np.all(np.isfinite(result.positions))
     assert_fd_limits(with_history(z, result.positions, rest_at_end), dt, acc, jerk, vel)
     if rest_at_end:
+        # y_{N−1}[1:4] = 0 in scaled units (x[a]·Δt^a, rad), up to the solver's feasibility
+        # tolerance (the ladder goes down to 1e-8) relative to the size of the recording.
         np.testing.assert_allclose(result.states[-1, :, 1:] * dt ** np.arange(1, 4), 0.0,
-                                   atol=1e-9)
+                                   atol=1e-6 * (1.0 + np.abs(z).max()))
 
 
 @pytest.mark.parametrize("velocity", ["never", "always"])
 @pytest.mark.parametrize("rest_at_end", [False, True])
 def test_offline_cks_trajectory_always_succeeds_within_fd_limits(rest_at_end, velocity):
-    """Δt = 0.25 s (the paper's 4 Hz) and 1 s; faster rates: see the xfail test below."""
+    """Δt = 0.1, 0.25 (the paper's 4 Hz) and 1 s; 100 Hz: see the xfail test below."""
 
     @settings(**FAST)
-    @given(cases(velocity=velocity, dts=(0.25, 1.0)))
+    @given(cases(velocity=velocity, dts=(0.1, 0.25, 1.0)))
     def check(case):
         check_trajectory_mode(case, rest_at_end)
 
     check()
 
 
-@pytest.mark.xfail(strict=True, reason=SOLVER_FAILURE_BUG + " / " + FD_LIMIT_BUG)
+@pytest.mark.xfail(strict=True, raises=RuntimeError, reason=SOLVER_FAILURE_BUG)
 @settings(**NO_SHRINK)
-@given(cases(dts=(0.01, 0.1)), st.booleans())
-def test_offline_cks_trajectory_always_succeeds_within_fd_limits_at_10hz_and_100hz(
-        case, rest_at_end):
+@given(cases(dts=(0.01,)), st.booleans())
+def test_offline_cks_trajectory_always_succeeds_within_fd_limits_at_100hz(case, rest_at_end):
     check_trajectory_mode(case, rest_at_end)
 
 
@@ -203,6 +196,7 @@ def test_offline_cks_trajectory_solves_a_small_step_at_4hz():
 
 
 def test_offline_cks_trajectory_meets_fd_limits_at_10hz():
+    """Once returned jerk 1.0000278 × j_max (solver feasibility tolerance vs j_max Δt³)."""
     z = np.array([0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0, 1.0, 1.0])[:, None]
     result = smooth_recording(
         z, 0.1, "offline-cks",

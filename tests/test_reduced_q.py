@@ -453,3 +453,10 @@ def test_invalid_limits_name_the_joint():
                   joint_names=["shoulder", "elbow"])
     assert "max_acceleration_rad_per_s2[1] = -0.1 for joint 1 ('elbow') must be > 0" in str(
         error.value)
+
+
+@pytest.mark.parametrize("kwargs, field", [({"rho": "0.5"}, "rho"), ({"rho": None}, "rho"),
+                                           ({"max_retries": "x"}, "max_retries")])
+def test_non_numeric_config_values_name_the_field(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        ReducedQConfig(**kwargs)
