@@ -13,6 +13,7 @@ raw operator data break noticeably (as the paper's calibrated limits did).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 import time
@@ -74,7 +75,7 @@ def write_demo_report(out_dir, *, shape: str = "Angle", demo_index: int = 0) -> 
     results, metrics = {}, {}
     runs = list(RUNS)
     for label, method, overrides in runs + [("online-cks (2nd operation)", "online-cks", {})]:
-        settings = SmoothingSettings(**{**base.__dict__, **overrides})
+        settings = dataclasses.replace(base, **overrides)
         sigma0 = None
         if label.endswith("(2nd operation)"):
             # The same operator repeats the motion, starting from the σ reached (SPEC §4, C8).
@@ -133,6 +134,12 @@ def _write_figures(out, t, z, results, names, forward_kinematics) -> list[tuple[
     styles = dict(zip(shown, ("k-", "C3:", "C1--", "C2-", "C0-", "C4-.")))
     figures = []
 
+    def save(fig, name, title):
+        fig.tight_layout()
+        fig.savefig(out / name, dpi=110)
+        plt.close(fig)
+        figures.append((title, name))
+
     fig, axes = plt.subplots(len(names), 1, figsize=(9, 2.4 * len(names)), sharex=True)
     for j, ax in enumerate(np.atleast_1d(axes)):
         for label in shown:
@@ -140,10 +147,7 @@ def _write_figures(out, t, z, results, names, forward_kinematics) -> list[tuple[
         ax.set_ylabel(f"{names[j]} [rad]")
     np.atleast_1d(axes)[0].legend(fontsize=7, ncol=3)
     np.atleast_1d(axes)[-1].set_xlabel("sample time t [s] (commands leave at sent_t)")
-    fig.tight_layout()
-    fig.savefig(out / "joint_positions.png", dpi=110)
-    plt.close(fig)
-    figures.append(("Joint positions", "joint_positions.png"))
+    save(fig, "joint_positions.png", "Joint positions")
 
     fig, axes = plt.subplots(len(names), 2, figsize=(11, 2.4 * len(names)), sharex=True)
     for j in range(len(names)):
@@ -159,10 +163,7 @@ def _write_figures(out, t, z, results, names, forward_kinematics) -> list[tuple[
             ax.set_ylabel(f"{names[j]} FD {'acc' if order == 2 else 'jerk'} [{unit}]")
     axes[0, 0].legend(fontsize=7, ncol=2)
     fig.suptitle("Finite-difference acceleration and jerk of the sent positions (red: limits)")
-    fig.tight_layout()
-    fig.savefig(out / "acceleration_jerk.png", dpi=110)
-    plt.close(fig)
-    figures.append(("Acceleration and jerk against the limits", "acceleration_jerk.png"))
+    save(fig, "acceleration_jerk.png", "Acceleration and jerk against the limits")
 
     fig, ax = plt.subplots(figsize=(6, 5))
     for label in shown:
@@ -173,10 +174,7 @@ def _write_figures(out, t, z, results, names, forward_kinematics) -> list[tuple[
     ax.set_ylabel("y [m]")
     ax.legend(fontsize=7)
     ax.set_title("End-effector track (planar forward kinematics)")
-    fig.tight_layout()
-    fig.savefig(out / "end_effector.png", dpi=110)
-    plt.close(fig)
-    figures.append(("End-effector track", "end_effector.png"))
+    save(fig, "end_effector.png", "End-effector track")
 
     fig, ax = plt.subplots(figsize=(8, 3))
     for label, style in (("online-cks (1st operation)", "-"), ("online-cks (2nd operation)", "--")):
@@ -187,10 +185,7 @@ def _write_figures(out, t, z, results, names, forward_kinematics) -> list[tuple[
     ax.set_ylabel("σ [rad²/s⁷]")
     ax.legend(fontsize=7, ncol=2)
     ax.set_title("Reduced-Q: σ per joint never increases; the 2nd operation starts where the 1st ended")
-    fig.tight_layout()
-    fig.savefig(out / "sigma.png", dpi=110)
-    plt.close(fig)
-    figures.append(("Reduced-Q σ over two operations", "sigma.png"))
+    save(fig, "sigma.png", "Reduced-Q σ over two operations")
     return figures
 
 

@@ -96,6 +96,7 @@ class FixedLagSmoother:
                 f"rest_covariance must be a finite (4, 4) matrix; got {rest_covariance!r}"
             )
         self._rest_cov_scaled = model.cov_to_scaled(rest_covariance)
+        self._default_q_scaled = model.scaled_process_covariance()  # Q̃(σ_0), reused each tick
 
     @property
     def num_blocks(self) -> int:
@@ -127,7 +128,8 @@ class FixedLagSmoother:
             raise ValueError(
                 f"measurement must be {self.model.num_joints} finite values; got {z!r}"
             )
-        q_scaled = self.model.scaled_process_covariance(sigma)
+        q_scaled = (self._default_q_scaled if sigma is None
+                    else self.model.scaled_process_covariance(sigma))
         if self.method == "superstate":
             return self._step_superstate(state, z, q_scaled)
         return self._step_recursion(state, z, q_scaled)
