@@ -1,0 +1,238 @@
+"""The online smoother of the ground station: BMFLS with reduced-Q σ adaptation at 4 Hz.
+
+Consumes the FIFO's newest sample z_k at every uplink tick and emits x̂_{k−L|k}, the smoothed
+estimate of the sample leaving the FIFO at that tick, so the smoothed command and the raw
+delayed command are the same instant of the operator's motion (SPEC §5.1: the FIFO is the
+smoother window; total added latency L·Δt). The numerics are the core's
+:class:`~telesmooth.smoothing.reduced_q.OnlineCks` (SPEC §3, §4); this system only keeps its
+state in the Context and wires ports.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from telesmooth.smoothing.model import (
+    DEFAULT_LAG,
+    DEFAULT_R,
+    DEFAULT_SIGMA,
+    STATE_SIZE,
+    JerkModel,
+)
+from telesmooth.smoothing.reduced_q import OnlineCks, ReducedQConfig
+from telesmooth.smoothing.state_vector import OnlineCksStateVector
+from telesmooth.smoothing.validation import as_per_joint
+from telesmooth.systems.timing import check_period
+
+__all__ = ["ONLINE_SMOOTHER_METHODS", "ReducedQSmoother", "ReducedQSmootherConfig"]
+
+ONLINE_SMOOTHER_METHODS = ("online-cks", "bmfls", "pass-through")
+
+
+@dataclasses.dataclass(frozen=True)
+class ReducedQSmootherConfig:
+    """Settings of the online smoother.
+
+    Attributes:
+        method: ``"online-cks"`` (BMFLS + reduced-Q, default), ``"bmfls"`` (fixed σ), or
+            ``"pass-through"`` (no smoothing: the raw z_{k−L}, with the same latency).
+        period_s: Δt, the uplink period, s.
+        lag: L, samples of fixed lag (= the FIFO length); 3 for 0.75 s at 4 Hz.
+        sigma: σ_0, jerk-noise intensity per joint (scalar or per joint), rad²/s⁵.
+        r: Measurement noise variance of the hand, rad².
+        max_acceleration_rad_per_s2: a_max per joint (scalar or per joint); online-cks only.
+        max_jerk_rad_per_s3: j_max per joint; online-cks only.
+        reduced_q: The σ adaptation settings (variant A/B1/B2, step rule, trigger, σ_min).
+        fixed_lag_method: ``"recursion"`` (exact O(L) update, default) or ``"superstate"``.
+    """
+
+    method: str = "online-cks"
+    period_s: float = 0.25
+    lag: int = DEFAULT_LAG
+    sigma: float | tuple = DEFAULT_SIGMA
+    r: float = DEFAULT_R
+    max_acceleration_rad_per_s2: float | tuple = 0.05
+    max_jerk_rad_per_s3: float | tuple = 0.1
+    reduced_q: ReducedQConfig = dataclasses.field(default_factory=ReducedQConfig)
+    fixed_lag_method: str = "recursion"
+
+    def __post_init__(self) -> None:
+        if self.method not in ONLINE_SMOOTHER_METHODS:
+            raise ValueError(
+                f"ReducedQSmootherConfig.method = {self.method!r} must be one of "
+                f"{ONLINE_SMOOTHER_METHODS}"
+            )
+        check_period("ReducedQSmootherConfig.period_s", self.period_s)
+        if isinstance(self.lag, bool) or not isinstance(self.lag, (int, np.integer)) or (
+                self.lag < 0):
+            raise ValueError(
+                f"ReducedQSmootherConfig.lag = {self.lag!r} must be a non-negative integer"
+            )
+
+
+class ReducedQSmoother(LeafSystem):
+    r"""Fixed-lag smoother (BMFLS) with reduced-Q adaptation, one step per uplink tick.
+
+    .. pydrake_system::
+
+        name: ReducedQSmoother
+        input_ports:
+        - q_sample
+        - reset (optional)
+        output_ports:
+        - q_smoothed
+        - state_smoothed
+        - sigma
+        - triggered
+
+    Ports (J = num_joints):
+
+    - ``q_sample``: z_k, the joint sample entering the FIFO at this tick (the FIFO's
+      ``q_newest``), rad, (J,).
+    - ``reset``: 1 when the FIFO was refilled at this tick (collision hold), (1,);
+      unconnected = never.
+    - ``q_smoothed``: position of x̂_{k−L|k}, rad, (J,): the command to send.
+    - ``state_smoothed``: x̂_{k−L|k} as [q (J), q̇ (J), q̈ (J), q⃛ (J)], rad, rad/s, rad/s²,
+      rad/s³, (4J,).
+    - ``sigma``: σ per joint in effect for the next tick, (J,) (the paper's σ_k; reduced-Q
+      lowers it when the command breaks a_max or j_max; never raised).
+    - ``triggered``: 1 per joint if this tick's command broke a limit, (J,).
+
+    State: the Online-CKS record (superstate means and covariances of the L+1 blocks, σ, the
+    last three sent positions, the B2 checkpoints) packed into one discrete vector, plus the
+    raw window of the last L+1 samples (for ``pass-through``). Updated at t_k = k·period_s.
+
+    Equations per tick (SPEC §3.2, §4.2), with X the state after tick k−1:
+
+        if reset_k:  X ← rest state at z_k (blocks [z_k, 0, 0, 0], P = 0), σ kept
+        (X', σ', x̂_{k−L|k}, triggered) = OnlineCks.step(X, z_k)
+        bmfls: a_max = j_max = ∞ (σ never changes);  pass-through: output [z_{k−L}, 0, 0, 0]
+
+    Like :class:`~telesmooth.systems.delay_fifo.DelayFifo`, the outputs are those of a tick
+    taken at the current time (computed from the state and the current input), so the uplink
+    sampling them at t_k sends x̂_{k−L|k} at t_k. At t = 0 the smoother is at rest at
+    ``initial_position_rad``; the first L outputs estimate samples before the start (that
+    pose, at rest).
+    """
+
+    def __init__(self, config: ReducedQSmootherConfig = ReducedQSmootherConfig(), *,
+                 joint_names, initial_position_rad=None, sigma0=None):
+        super().__init__()
+        joint_names = tuple(str(name) for name in joint_names)
+        n = len(joint_names)
+        if n == 0:
+            raise ValueError("joint_names must name at least one joint")
+        self._config = config
+        self._joint_names = joint_names
+        sigma = as_per_joint("sigma", config.sigma, n, joint_names)
+        model = JerkModel.make(config.period_s, sigma, config.r, num_joints=n,
+                               joint_names=joint_names)
+        limits_off = config.method != "online-cks"
+        self._online = OnlineCks(
+            model,
+            max_acceleration=np.inf if limits_off else config.max_acceleration_rad_per_s2,
+            max_jerk=np.inf if limits_off else config.max_jerk_rad_per_s3,
+            lag=config.lag,
+            config=config.reduced_q,
+            method=config.fixed_lag_method,
+            joint_names=joint_names,
+        )
+        self._packer = OnlineCksStateVector(self._online)
+        q0 = np.zeros(n) if initial_position_rad is None else np.asarray(
+            initial_position_rad, dtype=float)
+        if q0.shape != (n,):
+            raise ValueError(
+                f"initial_position_rad = {initial_position_rad!r} must have {n} values "
+                f"({joint_names})"
+            )
+        for name, value in zip(joint_names, q0):
+            if not np.isfinite(value):
+                raise ValueError(f"initial_position_rad[{name!r}] = {float(value)!r} must be finite")
+        initial = self._online.initial_state(q0, sigma0)
+        lag = config.lag
+
+        self._q_sample_input = self.DeclareVectorInputPort("q_sample", n)
+        self._reset_input = self.DeclareVectorInputPort("reset", 1)
+        self._online_state = self.DeclareDiscreteState(self._packer.pack(initial))
+        self._raw_window_state = self.DeclareDiscreteState(np.tile(q0, lag + 1))
+        self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update_smoother)
+        # A forced update runs the same tick on demand (CalcForcedDiscreteVariableUpdate).
+        self.DeclareForcedDiscreteUpdateEvent(self._update_smoother)
+
+        self._q_smoothed_output = self.DeclareVectorOutputPort(
+            "q_smoothed", n, lambda c, out: out.SetFromVector(self._tick(c)[1][:, 0]))
+        self._state_smoothed_output = self.DeclareVectorOutputPort(
+            "state_smoothed", STATE_SIZE * n,
+            lambda c, out: out.SetFromVector(self._tick(c)[1].T.ravel()))
+        self._sigma_output = self.DeclareVectorOutputPort(
+            "sigma", n, lambda c, out: out.SetFromVector(self._tick(c)[0].sigma))
+        self._triggered_output = self.DeclareVectorOutputPort(
+            "triggered", n,
+            lambda c, out: out.SetFromVector(self._tick(c)[2].astype(float)))
+
+    # -- accessors ------------------------------------------------------------------------
+
+    @property
+    def config(self) -> ReducedQSmootherConfig:
+        return self._config
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self._joint_names
+
+    @property
+    def online(self) -> OnlineCks:
+        """The core smoother this system steps (for cross-checks)."""
+        return self._online
+
+    def get_q_sample_input_port(self):
+        return self._q_sample_input
+
+    def get_reset_input_port(self):
+        return self._reset_input
+
+    def get_q_smoothed_output_port(self):
+        return self._q_smoothed_output
+
+    def get_state_smoothed_output_port(self):
+        return self._state_smoothed_output
+
+    def get_sigma_output_port(self):
+        return self._sigma_output
+
+    def get_triggered_output_port(self):
+        return self._triggered_output
+
+    # -- the tick -------------------------------------------------------------------------
+
+    def _tick(self, context):
+        """(new core state, output block (J, 4), triggered (J,), new raw window) at this time."""
+        n, lag = len(self._joint_names), self._config.lag
+        z = np.array(self._q_sample_input.Eval(context), dtype=float)
+        state = self._packer.unpack(context.get_discrete_state(self._online_state).get_value())
+        raw = context.get_discrete_state(self._raw_window_state).get_value().reshape(lag + 1, n)
+        reset = self._reset_input.HasValue(context) and self._reset_input.Eval(context)[0] > 0.5
+        if not np.all(np.isfinite(z)):
+            # The FIFO never passes a non-finite sample; if a user wires one in anyway, hold:
+            # restart at rest at the last smoothed position rather than propagate NaN.
+            z = self._online.smoother.output(state.smoother)[:, 0]
+            reset = True
+        if reset:
+            state = self._online.initial_state(z, state.sigma)
+            raw = np.tile(z, (lag + 1, 1))
+        new_state, output, triggered = self._online.step(state, z)
+        new_raw = np.vstack([raw[1:], z[None, :]])
+        if self._config.method == "pass-through":
+            output = np.zeros((n, STATE_SIZE))
+            output[:, 0] = new_raw[0]
+        return new_state, output, triggered, new_raw
+
+    def _update_smoother(self, context, discrete_state):
+        new_state, _, _, new_raw = self._tick(context)
+        discrete_state.get_mutable_vector(self._online_state).SetFromVector(
+            self._packer.pack(new_state))
+        discrete_state.get_mutable_vector(self._raw_window_state).SetFromVector(
+            new_raw.ravel())

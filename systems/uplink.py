@@ -1,0 +1,127 @@
+"""The 4 Hz uplink: zero-order hold of the smoothed command, stamped with time and sequence.
+
+This is the last ground-station stage: whatever it holds is what the robot receives (through
+LCM in the split set-up). It never passes a non-finite or wrong-sized command: it re-sends the
+previous one and raises a flag, so the robot holds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from telesmooth.systems.timing import check_period
+
+__all__ = ["Uplink", "UplinkConfig"]
+
+
+@dataclasses.dataclass(frozen=True)
+class UplinkConfig:
+    """Settings of the uplink.
+
+    Attributes:
+        period_s: Uplink period, s (0.25 s: 4 Hz).
+    """
+
+    period_s: float = 0.25
+
+    def __post_init__(self) -> None:
+        check_period("UplinkConfig.period_s", self.period_s)
+
+
+class Uplink(LeafSystem):
+    r"""Samples the smoothed command every ``period_s`` and holds it, with a stamp.
+
+    .. pydrake_system::
+
+        name: Uplink
+        input_ports:
+        - q_smoothed
+        output_ports:
+        - q_sent
+        - sequence_number
+        - send_time
+        - command_rejected
+
+    Ports (J = num_joints):
+
+    - ``q_smoothed``: the command to send, rad, (J,) (the smoother's ``q_smoothed``).
+    - ``q_sent``: the command last sent, rad, (J,); held between ticks.
+    - ``sequence_number``: k, the number of the last packet (0 for the first), (1,);
+      −1 before the first tick.
+    - ``send_time``: t_k, when the last packet left (simulation clock), s, (1,); −1 before the
+      first.
+    - ``command_rejected``: 1 if the last packet re-sent the previous command because the
+      input was not finite, (1,).
+
+    Update at t_k = k·period_s (offset 0): q_sent ← q_smoothed(t_k) if finite, else
+    q_sent (unchanged, flag raised); sequence ← sequence + 1; send_time ← t_k (the event time). All outputs are
+    state outputs: a tick at t_k is visible just after t_k (Drake's publish-before-update
+    convention means a logger sampling exactly at t_k still sees packet k−1). Before the first
+    tick q_sent is ``initial_position_rad``.
+    """
+
+    def __init__(self, config: UplinkConfig = UplinkConfig(), *, num_joints: int,
+                 initial_position_rad=None):
+        super().__init__()
+        if not isinstance(num_joints, (int, np.integer)) or num_joints < 1:
+            raise ValueError(f"num_joints = {num_joints!r} must be a positive integer")
+        n = int(num_joints)
+        q0 = np.zeros(n) if initial_position_rad is None else np.asarray(
+            initial_position_rad, dtype=float)
+        if q0.shape != (n,):
+            raise ValueError(
+                f"initial_position_rad = {initial_position_rad!r} must have {n} values")
+        for joint, value in enumerate(q0):
+            if not np.isfinite(value):
+                raise ValueError(f"initial_position_rad[{joint}] = {float(value)!r} must be finite")
+        self._config = config
+        self._num_joints = n
+        self._q_smoothed_input = self.DeclareVectorInputPort("q_smoothed", n)
+        self._q_sent_state = self.DeclareDiscreteState(q0)
+        self._sequence_state = self.DeclareDiscreteState([-1.0])
+        self._send_time_state = self.DeclareDiscreteState([-1.0])
+        self._rejected_state = self.DeclareDiscreteState([0.0])
+        self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update_packet)
+        # A forced update runs the same tick on demand (CalcForcedDiscreteVariableUpdate).
+        self.DeclareForcedDiscreteUpdateEvent(self._update_packet)
+        self._q_sent_output = self.DeclareStateOutputPort("q_sent", self._q_sent_state)
+        self._sequence_output = self.DeclareStateOutputPort(
+            "sequence_number", self._sequence_state)
+        self._send_time_output = self.DeclareStateOutputPort("send_time", self._send_time_state)
+        self._rejected_output = self.DeclareStateOutputPort(
+            "command_rejected", self._rejected_state)
+
+    @property
+    def config(self) -> UplinkConfig:
+        return self._config
+
+    def get_q_smoothed_input_port(self):
+        return self._q_smoothed_input
+
+    def get_q_sent_output_port(self):
+        return self._q_sent_output
+
+    def get_sequence_number_output_port(self):
+        return self._sequence_output
+
+    def get_send_time_output_port(self):
+        return self._send_time_output
+
+    def get_command_rejected_output_port(self):
+        return self._rejected_output
+
+    def _update_packet(self, context, discrete_state):
+        command = np.asarray(self._q_smoothed_input.Eval(context), dtype=float)
+        previous = context.get_discrete_state(self._q_sent_state).get_value()
+        valid = command.shape == previous.shape and bool(np.all(np.isfinite(command)))
+        sequence = context.get_discrete_state(self._sequence_state).get_value()[0] + 1.0
+        discrete_state.get_mutable_vector(self._q_sent_state).SetFromVector(
+            command if valid else previous)
+        discrete_state.get_mutable_vector(self._sequence_state).SetFromVector([sequence])
+        discrete_state.get_mutable_vector(self._send_time_state).SetFromVector(
+            [context.get_time()])
+        discrete_state.get_mutable_vector(self._rejected_state).SetFromVector(
+            [0.0 if valid else 1.0])
