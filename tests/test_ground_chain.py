@@ -321,3 +321,30 @@ def test_clutch_policy_without_enable_input_says_so():
     dut.get_q_target_input_port().FixValue(context, [0.0])
     with pytest.raises(RuntimeError, match="'enable' input"):
         dut.get_window_output_port().Eval(context)
+
+
+def test_fifo_and_smoother_outputs_describe_the_same_instant():
+    """On a noise-free ramp (in the jerk model's null space) the smoothed command converges to
+    the FIFO's delayed sample of the same tick, and is clearly apart from its neighbours."""
+    slope = 0.02
+    ramp = slope * DT * np.arange(80)[:, None]
+    builder = DiagramBuilder()
+    source = builder.AddSystem(TickTable(ramp))
+    fifo = builder.AddSystem(DelayFifo(num_joints=1, initial_position_rad=[0.0]))
+    smoother = builder.AddSystem(ReducedQSmoother(
+        ReducedQSmootherConfig(method="bmfls"), joint_names=("j",), initial_position_rad=[0.0]))
+    builder.Connect(source.get_output_port(), fifo.get_q_target_input_port())
+    builder.Connect(fifo.get_q_newest_output_port(), smoother.get_q_sample_input_port())
+    diagram = builder.Build()
+    context = diagram.CreateDefaultContext()
+    fifo_context = fifo.GetMyContextFromRoot(context)
+    smoother_context = smoother.GetMyContextFromRoot(context)
+    simulator = Simulator(diagram, context)
+    simulator.AdvanceTo(70 * DT + 1e-6)   # ticks 0..70 done; the state holds tick 70
+    context.SetTime(71 * DT)               # outputs now describe tick 71
+    delayed = fifo.get_q_delayed_output_port().Eval(fifo_context)[0]
+    smoothed = smoother.get_q_smoothed_output_port().Eval(smoother_context)[0]
+    assert delayed == pytest.approx(ramp[71 - LAG, 0], abs=1e-15)
+    assert abs(smoothed - delayed) < 1e-4
+    assert abs(smoothed - ramp[70 - LAG, 0]) > 4e-3
+    assert abs(smoothed - ramp[72 - LAG, 0]) > 4e-3
