@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from telesmooth.datasets.synthetic import synthetic_joint_motion
 from telesmooth.smoothing.fixed_lag import FixedLagSmoother
 from telesmooth.smoothing.kalman import rest_prior, rts_smoother
 from telesmooth.smoothing.model import DEFAULT_DT_S, DEFAULT_R, DEFAULT_SIGMA, JerkModel
@@ -32,22 +33,12 @@ MAX_JERK = 0.1
 
 
 def synthetic_operator(num_samples: int, num_joints: int, *, dt_s=DEFAULT_DT_S, seed=0):
-    """Minimum-jerk reaches of ±0.4 rad lasting 2–6 s with pauses, plus N(0, (1e-3 rad)²)."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(num_samples) * dt_s
-    q = np.zeros((num_samples, num_joints))
-    for j in range(num_joints):
-        starts, position = [], 0.0
-        t0 = 0.0
-        while t0 < t[-1]:
-            duration = rng.uniform(2.0, 6.0)
-            target = np.clip(position + rng.uniform(-0.4, 0.4), -1.5, 1.5)
-            starts.append((t0, duration, target - position))
-            position, t0 = target, t0 + duration + rng.uniform(0.0, 2.0)
-        for t0, duration, step in starts:
-            s = np.clip((t - t0) / duration, 0.0, 1.0)
-            q[:, j] += step * (10 * s**3 - 15 * s**4 + 6 * s**5)
-    return q + 1e-3 * rng.standard_normal(q.shape)
+    """Minimum-jerk reaches of ±0.4 rad lasting 2–6 s with pauses, plus N(0, (1e-3 rad)²).
+
+    Targets are clipped to ±1.5 rad; every joint starts at 0 (see ``synthetic_joint_motion``).
+    """
+    return synthetic_joint_motion(num_samples, num_joints, dt_s=dt_s, noise_rad=1e-3, seed=seed,
+                                  position_limit_rad=1.5)
 
 
 def _best_time(function, repeat):

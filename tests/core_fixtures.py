@@ -2,27 +2,17 @@
 
 import numpy as np
 
+from telesmooth.datasets.synthetic import minimum_jerk, synthetic_joint_motion
 
-def minimum_jerk(t, t0, duration, start, end):
-    """Minimum-jerk reach from ``start`` to ``end`` over [t0, t0 + duration]."""
-    s = np.clip((t - t0) / duration, 0.0, 1.0)
-    return start + (end - start) * (10 * s**3 - 15 * s**4 + 6 * s**5)
+__all__ = ["dense_smoother_normal_equations", "minimum_jerk", "operator_recording"]
 
 
 def operator_recording(num_samples=60, num_joints=2, dt=0.25, noise=1e-3, seed=0):
-    """A few minimum-jerk reaches per joint plus white position noise, shape (N, J)."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(num_samples) * dt
-    q = np.zeros((num_samples, num_joints))
-    for j in range(num_joints):
-        position, t0 = 0.1 * j, 0.0
-        q[:, j] = position
-        while t0 < t[-1]:
-            duration = rng.uniform(2.0, 6.0)
-            target = position + rng.uniform(-0.4, 0.4)
-            q[:, j] += minimum_jerk(t, t0, duration, 0.0, target - position)
-            position, t0 = target, t0 + duration + rng.uniform(0.0, 2.0)
-    return q + noise * rng.standard_normal(q.shape)
+    """A few minimum-jerk reaches per joint plus white position noise, shape (N, J).
+
+    Joint j starts at 0.1 j rad; targets are not clipped (see ``synthetic_joint_motion``)."""
+    return synthetic_joint_motion(num_samples, num_joints, dt_s=dt, noise_rad=noise, seed=seed,
+                                  joint_offset_step_rad=0.1)
 
 
 def dense_smoother_normal_equations(z, dt, sigma_schedule, r, prior_mean, prior_cov, dps=40):

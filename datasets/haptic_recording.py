@@ -1,0 +1,397 @@
+"""Recorded haptic-device commands: the operator's Cartesian pose and clutch, at a uniform rate.
+
+A :class:`HapticRecording` is what the haptic source system replays: per sample, the pose the
+operator commands and whether the clutch (enable) is engaged. It is a pure record (numpy
+only); it can be made from an operator session (LASA or synthetic) or read from / written to
+CSV and NPZ files. Every reader validates its input and says where a problem is (field or
+column, row, value).
+
+File formats:
+
+* CSV: header ``t,<pose names...>[,enable]``; ``t`` in s, pose columns in the units their
+  names carry (``x_m``, ``phi_rad``, ...), ``enable`` 0 or 1 (missing column: enabled
+  throughout). One data row per sample.
+* NPZ: arrays ``t_s`` (K,), ``pose`` (K, m), ``pose_names`` (m,) of str and optionally
+  ``enable`` (K,) of bool or 0/1 (missing: enabled throughout). Read without pickle.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+import zipfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from telesmooth.smoothing.trajectory_io import check_uniform_time
+
+__all__ = [
+    "PLANAR_POSE_NAMES",
+    "SPATIAL_POSE_NAMES",
+    "HapticRecording",
+    "read_haptic_csv",
+    "read_haptic_npz",
+    "write_haptic_csv",
+    "write_haptic_npz",
+]
+
+PLANAR_POSE_NAMES: tuple[str, str, str] = ("x_m", "y_m", "phi_rad")
+"""Pose names for a planar arm: end-effector position (m) and orientation (rad)."""
+
+SPATIAL_POSE_NAMES: tuple[str, ...] = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
+"""Pose names for a 6-DOF arm: position (m) and roll-pitch-yaw orientation (rad)."""
+
+_TIME_COLUMN = "t"
+_ENABLE_COLUMN = "enable"
+_NPZ_KEYS = ("t_s", "pose", "pose_names", "enable")
+_NPZ_REQUIRED_KEYS = ("t_s", "pose", "pose_names")
+
+
+def _check_pose_names(pose_names, *, source: str) -> tuple[str, ...]:
+    """Returns the names as a tuple of str; raises ValueError for empty/duplicate/reserved."""
+    names = tuple(pose_names)
+    if not names:
+        raise ValueError(f"{source}: pose_names = {names!r} must name at least one pose entry")
+    for index, name in enumerate(names):
+        if not isinstance(name, str) or not name.strip() or name != name.strip():
+            raise ValueError(
+                f"{source}: pose_names[{index}] = {name!r} must be a non-empty string "
+                "without surrounding spaces"
+            )
+        if name in (_TIME_COLUMN, _ENABLE_COLUMN):
+            raise ValueError(
+                f"{source}: pose_names[{index}] = {name!r} is reserved for the "
+                f"{'time' if name == _TIME_COLUMN else 'clutch'} column"
+            )
+        if name in names[:index]:
+            raise ValueError(
+                f"{source}: pose_names[{index}] = {name!r} duplicates pose_names"
+                f"[{names.index(name)}]"
+            )
+    return names
+
+
+def _check_expected_names(names: Sequence[str], expected, *, source: str) -> None:
+    """Raises ValueError if ``names`` differ from ``expected`` (missing, extra, order)."""
+    if expected is None:
+        return
+    expected = tuple(expected)
+    if tuple(names) == expected:
+        return
+    missing = [name for name in expected if name not in names]
+    extra = [name for name in names if name not in expected]
+    if missing:
+        raise ValueError(f"{source}: missing pose column(s) {missing}; expected {list(expected)}")
+    if extra:
+        raise ValueError(
+            f"{source}: unexpected pose column(s) {extra}; expected {list(expected)}"
+        )
+    raise ValueError(
+        f"{source}: pose columns {list(names)} are not in the expected order {list(expected)}"
+    )
+
+
+def _as_enable(values, num_samples: int, *, source: str) -> np.ndarray:
+    """Converts bool or 0/1 values of shape (K,) to a bool array; raises ValueError otherwise."""
+    array = np.asarray(values)
+    if array.shape != (num_samples,):
+        raise ValueError(
+            f"{source}: enable has shape {array.shape}; expected ({num_samples},), one flag "
+            "per sample"
+        )
+    if array.dtype == bool:
+        return array.copy()
+    if array.dtype.kind not in "iuf":
+        raise ValueError(f"{source}: enable has dtype {array.dtype}; expected bool or 0/1")
+    bad = ~((array == 0) | (array == 1))
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{source}: enable[{row}] = {array[row].item()!r} must be 0 or 1")
+    return array == 1
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class HapticRecording:
+    """The commands of a haptic device, uniformly sampled.
+
+    Attributes:
+        t_s: Sample times, s; shape (K,), K >= 2, strictly increasing and uniform (relative
+            1e-6, as for joint CSV files). Need not start at 0. Read-only.
+        pose: Commanded Cartesian pose, shape (K, m), columns ordered and united as
+            ``pose_names`` (e.g. m and rad). Finite. Read-only.
+        enable: Clutch state per sample, bool, shape (K,); True while the operator is
+            commanding the robot. Read-only.
+        pose_names: Name of each pose column, shape (m,), e.g. :data:`PLANAR_POSE_NAMES`;
+            non-empty, unique, not ``"t"`` or ``"enable"``.
+
+    Arrays given are copied (as float / bool) and made read-only; ``enable`` also accepts
+    0/1 numbers. Equality is identity (the fields hold arrays).
+
+    Raises:
+        ValueError: On wrong shapes, fewer than 2 samples, non-finite values, non-increasing
+            or non-uniform time, enable values other than 0/1, or bad pose names; the message
+            names the field, the sample (0-based index; the time-step checks shared with
+            joint CSV files count data rows from 1 and say so) and column name where
+            relevant, and the offending value.
+    """
+
+    t_s: np.ndarray
+    pose: np.ndarray
+    enable: np.ndarray
+    pose_names: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        names = _check_pose_names(self.pose_names, source="HapticRecording")
+        t_s = np.array(self.t_s, dtype=float)
+        if t_s.ndim != 1:
+            raise ValueError(f"t_s has shape {t_s.shape}; expected (num_samples,)")
+        if t_s.size < 2:
+            raise ValueError(f"t_s has {t_s.size} sample(s); at least 2 are needed")
+        pose = np.array(self.pose, dtype=float)
+        if pose.shape != (t_s.size, len(names)):
+            raise ValueError(
+                f"pose has shape {pose.shape}; expected ({t_s.size}, {len(names)}): one row "
+                f"per entry of t_s and one column per pose name {list(names)}"
+            )
+        bad = ~np.isfinite(t_s)
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"t_s[{row}] (sample {row}) = {float(t_s[row])!r} is not finite")
+        bad = ~np.isfinite(pose)
+        if bad.any():
+            row, col = (int(i) for i in np.argwhere(bad)[0])
+            raise ValueError(
+                f"pose[{row}, {col}] (sample {row}, column {names[col]!r}) = "
+                f"{float(pose[row, col])!r} is not finite ({int(bad.sum())} non-finite "
+                "value(s) in all)"
+            )
+        # The shared check counts rows from 1; say so, since our other messages index from 0.
+        check_uniform_time(t_s, source="t_s (data rows counted from 1)")
+        enable = _as_enable(self.enable, t_s.size, source="HapticRecording")
+        for array in (t_s, pose, enable):
+            array.setflags(write=False)
+        object.__setattr__(self, "t_s", t_s)
+        object.__setattr__(self, "pose", pose)
+        object.__setattr__(self, "enable", enable)
+        object.__setattr__(self, "pose_names", names)
+
+    @property
+    def num_samples(self) -> int:
+        """Number of samples K."""
+        return int(self.t_s.size)
+
+    @property
+    def num_pose(self) -> int:
+        """Number of pose entries m."""
+        return len(self.pose_names)
+
+    @property
+    def period_s(self) -> float:
+        """Sample period, s: (t_s[-1] - t_s[0]) / (K - 1)."""
+        return float((self.t_s[-1] - self.t_s[0]) / (self.t_s.size - 1))
+
+    @classmethod
+    def from_operator_session(cls, session) -> HapticRecording:
+        """The haptic commands of an operator session (LASA or synthetic).
+
+        Args:
+            session: An :class:`~telesmooth.datasets.lasa.OperatorSession`.
+
+        Returns:
+            A recording on the session's clock with pose (x, y, phi) named
+            :data:`PLANAR_POSE_NAMES`: x, y = ``session.xy_m`` (m) and
+            phi = ``session.mapping.end_effector_angle_rad`` (rad, constant); enabled
+            throughout.
+        """
+        xy_m = np.asarray(session.xy_m, dtype=float)
+        phi_rad = np.full(xy_m.shape[0], float(session.mapping.end_effector_angle_rad))
+        return cls(
+            t_s=session.t_s,
+            pose=np.column_stack([xy_m, phi_rad]),
+            enable=np.ones(xy_m.shape[0], dtype=bool),
+            pose_names=PLANAR_POSE_NAMES,
+        )
+
+
+def read_haptic_csv(path, *, expected_pose_names: Sequence[str] | None = None) -> HapticRecording:
+    """Reads a haptic recording from a CSV file ``t,<pose names...>[,enable]``.
+
+    Args:
+        path: The file.
+        expected_pose_names: If given, the pose columns must be exactly these, in order.
+
+    Returns:
+        The recording; enabled throughout if the file has no ``enable`` column.
+
+    Raises:
+        ValueError: If the file cannot be read or is empty, the first column is not ``t``,
+            there are no pose columns, a column name is empty or repeated, the pose columns
+            differ from ``expected_pose_names``, a row has the wrong number of values, a value
+            is not a finite number (the message gives the file line, column name and value),
+            an enable value is not 0 or 1, there are fewer than 2 rows, or the time column is
+            not strictly increasing and uniform.
+    """
+    path = Path(path)
+    try:
+        with path.open(newline="") as handle:
+            rows = list(csv.reader(handle))
+    except OSError as error:
+        raise ValueError(f"{path}: cannot read ({error.strerror})") from None
+    # Keep each row's line number in the file, skipping blank lines.
+    numbered = [(line, row) for line, row in enumerate(rows, start=1)
+                if row and any(cell.strip() for cell in row)]
+    if not numbered:
+        raise ValueError(f"{path}: the file is empty; expected a header 't,<pose names...>'")
+    header = [cell.strip() for cell in numbered[0][1]]
+    if header[0] != _TIME_COLUMN:
+        raise ValueError(
+            f"{path}: the first header column is {header[0]!r}; it must be 't' (seconds), "
+            "followed by the pose columns and optionally 'enable'"
+        )
+    for index, name in enumerate(header):
+        if not name:
+            raise ValueError(f"{path}: header column {index + 1} has an empty name")
+        if name in header[:index]:
+            raise ValueError(f"{path}: duplicate column {name!r} (header columns "
+                             f"{header.index(name) + 1} and {index + 1})")
+    has_enable = header[-1] == _ENABLE_COLUMN
+    pose_names = header[1:-1] if has_enable else header[1:]
+    if _ENABLE_COLUMN in pose_names:
+        raise ValueError(f"{path}: the 'enable' column must be the last column; header {header}")
+    if not pose_names:
+        raise ValueError(f"{path}: the header {header} names no pose columns after 't'")
+    _check_expected_names(pose_names, expected_pose_names, source=str(path))
+
+    values = np.empty((len(numbered) - 1, len(header)))
+    for data_index, (line, row) in enumerate(numbered[1:]):
+        if len(row) != len(header):
+            raise ValueError(
+                f"{path}: line {line} has {len(row)} value(s); the header has {len(header)} "
+                f"columns {header}"
+            )
+        for col, cell in enumerate(row):
+            column = header[col]
+            try:
+                value = float(cell)
+            except ValueError:
+                raise ValueError(
+                    f"{path}: line {line}, column {column!r}: {cell.strip()!r} is not a number"
+                ) from None
+            if not math.isfinite(value):
+                raise ValueError(
+                    f"{path}: line {line}, column {column!r}: value {cell.strip()!r} is not "
+                    "finite"
+                )
+            if has_enable and col == len(header) - 1 and value not in (0.0, 1.0):
+                raise ValueError(
+                    f"{path}: line {line}, column 'enable': value {cell.strip()!r} must be "
+                    "0 or 1"
+                )
+            values[data_index, col] = value
+    if values.shape[0] < 2:
+        raise ValueError(f"{path}: {values.shape[0]} data row(s); at least 2 are needed")
+    check_uniform_time(values[:, 0], source=f"{path}: column 't'")
+    pose = values[:, 1:1 + len(pose_names)]
+    enable = values[:, -1] == 1.0 if has_enable else np.ones(values.shape[0], dtype=bool)
+    return HapticRecording(
+        t_s=values[:, 0], pose=pose, enable=enable, pose_names=tuple(pose_names)
+    )
+
+
+def write_haptic_csv(path, recording: HapticRecording) -> None:
+    """Writes ``t,<pose names...>,enable`` with full float precision (repr round-trips).
+
+    Args:
+        path: The file; parent folders are created.
+        recording: The recording; ``enable`` is written as 1/0.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow([_TIME_COLUMN, *recording.pose_names, _ENABLE_COLUMN])
+        for k in range(recording.num_samples):
+            writer.writerow([
+                repr(float(recording.t_s[k])),
+                *(repr(float(v)) for v in recording.pose[k]),
+                "1" if recording.enable[k] else "0",
+            ])
+
+
+def read_haptic_npz(path, *, expected_pose_names: Sequence[str] | None = None) -> HapticRecording:
+    """Reads a haptic recording from an NPZ file (arrays ``t_s``, ``pose``, ``pose_names``,
+    optional ``enable``).
+
+    Args:
+        path: The file.
+        expected_pose_names: If given, ``pose_names`` must be exactly these, in order.
+
+    Returns:
+        The recording; enabled throughout if the file has no ``enable`` array.
+
+    Raises:
+        ValueError: If the file cannot be read as NPZ (pickled object arrays are refused), a
+            required array is missing or an unknown one present, ``pose_names`` is not a 1-D
+            array of strings or differs from ``expected_pose_names``, or the arrays fail the
+            checks of :class:`HapticRecording` (shapes, finiteness, uniform time, enable 0/1).
+    """
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            arrays = {key: archive[key] for key in archive.files}
+    except (OSError, zipfile.BadZipFile, EOFError) as error:
+        raise ValueError(f"{path}: cannot read as NPZ ({error})") from None
+    except ValueError as error:  # object arrays need pickle, which we refuse
+        raise ValueError(f"{path}: cannot read without pickle ({error})") from None
+    missing = [key for key in _NPZ_REQUIRED_KEYS if key not in arrays]
+    if missing:
+        raise ValueError(
+            f"{path}: missing array(s) {missing}; a haptic NPZ holds {list(_NPZ_KEYS)} "
+            "('enable' optional)"
+        )
+    unknown = sorted(key for key in arrays if key not in _NPZ_KEYS)
+    if unknown:
+        raise ValueError(
+            f"{path}: unknown array(s) {unknown}; a haptic NPZ holds {list(_NPZ_KEYS)}"
+        )
+    names_array = arrays["pose_names"]
+    if names_array.ndim != 1 or names_array.dtype.kind != "U":
+        raise ValueError(
+            f"{path}: pose_names has shape {names_array.shape} and dtype {names_array.dtype}; "
+            "expected a 1-D array of strings"
+        )
+    pose_names = _check_pose_names(
+        [str(name) for name in names_array], source=f"{path}: pose_names"
+    )
+    _check_expected_names(pose_names, expected_pose_names, source=str(path))
+    t_s = arrays["t_s"]
+    enable = arrays.get("enable")
+    if enable is None:
+        enable = np.ones(t_s.shape[:1], dtype=bool)
+    try:
+        return HapticRecording(
+            t_s=t_s, pose=arrays["pose"], enable=enable, pose_names=pose_names
+        )
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from None
+
+
+def write_haptic_npz(path, recording: HapticRecording) -> None:
+    """Writes ``t_s``, ``pose``, ``enable`` (bool) and ``pose_names`` (str) to an NPZ file.
+
+    Args:
+        path: The file; parent folders are created. NumPy appends ``.npz`` if missing.
+        recording: The recording.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(
+        path,
+        t_s=recording.t_s,
+        pose=recording.pose,
+        enable=recording.enable,
+        pose_names=np.array(recording.pose_names, dtype=str),
+    )
