@@ -39,8 +39,10 @@ class Uplink(LeafSystem):
         name: Uplink
         input_ports:
         - q_smoothed
+        - state_smoothed (optional)
         output_ports:
         - q_sent
+        - state_sent
         - sequence_number
         - send_time
         - command_rejected
@@ -48,7 +50,10 @@ class Uplink(LeafSystem):
     Ports (J = num_joints):
 
     - ``q_smoothed``: the command to send, rad, (J,) (the smoother's ``q_smoothed``).
+    - ``state_smoothed``: the smoother's [q, q̇, q̈, q⃛], (4J,), held with the packet so the
+      velocity sent (LCM) belongs to the same instant as the position; unconnected = zeros.
     - ``q_sent``: the command last sent, rad, (J,); held between ticks.
+    - ``state_sent``: [q_sent, q̇, q̈, q⃛] of the last packet, (4J,).
     - ``sequence_number``: k, the number of the last packet (0 for the first), (1,);
       −1 before the first tick.
     - ``send_time``: t_k, when the last packet left (simulation clock), s, (1,); −1 before the
@@ -80,7 +85,9 @@ class Uplink(LeafSystem):
         self._config = config
         self._num_joints = n
         self._q_smoothed_input = self.DeclareVectorInputPort("q_smoothed", n)
+        self._state_smoothed_input = self.DeclareVectorInputPort("state_smoothed", 4 * n)
         self._q_sent_state = self.DeclareDiscreteState(q0)
+        self._state_sent_state = self.DeclareDiscreteState(np.concatenate([q0, np.zeros(3 * n)]))
         self._sequence_state = self.DeclareDiscreteState([-1.0])
         self._send_time_state = self.DeclareDiscreteState([-1.0])
         self._rejected_state = self.DeclareDiscreteState([0.0])
@@ -88,6 +95,8 @@ class Uplink(LeafSystem):
         # A forced update runs the same tick on demand (CalcForcedDiscreteVariableUpdate).
         self.DeclareForcedDiscreteUpdateEvent(self._update_packet)
         self._q_sent_output = self.DeclareStateOutputPort("q_sent", self._q_sent_state)
+        self._state_sent_output = self.DeclareStateOutputPort(
+            "state_sent", self._state_sent_state)
         self._sequence_output = self.DeclareStateOutputPort(
             "sequence_number", self._sequence_state)
         self._send_time_output = self.DeclareStateOutputPort("send_time", self._send_time_state)
@@ -100,6 +109,12 @@ class Uplink(LeafSystem):
 
     def get_q_smoothed_input_port(self):
         return self._q_smoothed_input
+
+    def get_state_smoothed_input_port(self):
+        return self._state_smoothed_input
+
+    def get_state_sent_output_port(self):
+        return self._state_sent_output
 
     def get_q_sent_output_port(self):
         return self._q_sent_output
@@ -116,10 +131,18 @@ class Uplink(LeafSystem):
     def _update_packet(self, context, discrete_state):
         command = np.asarray(self._q_smoothed_input.Eval(context), dtype=float)
         previous = context.get_discrete_state(self._q_sent_state).get_value()
-        valid = command.shape == previous.shape and bool(np.all(np.isfinite(command)))
+        n = previous.shape[0]
+        derivatives = np.zeros(3 * n)
+        if self._state_smoothed_input.HasValue(context):
+            derivatives = np.asarray(self._state_smoothed_input.Eval(context), float)[n:]
+        valid = (command.shape == previous.shape and bool(np.all(np.isfinite(command)))
+                 and bool(np.all(np.isfinite(derivatives))))
         sequence = context.get_discrete_state(self._sequence_state).get_value()[0] + 1.0
         discrete_state.get_mutable_vector(self._q_sent_state).SetFromVector(
             command if valid else previous)
+        if valid:
+            discrete_state.get_mutable_vector(self._state_sent_state).SetFromVector(
+                np.concatenate([command, derivatives]))
         discrete_state.get_mutable_vector(self._sequence_state).SetFromVector([sequence])
         discrete_state.get_mutable_vector(self._send_time_state).SetFromVector(
             [context.get_time()])

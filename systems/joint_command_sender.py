@@ -1,0 +1,95 @@
+"""Ground side of the uplink over LCM: the held command as an ``lcmt_teleop_joint_command``."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem
+
+from telesmooth.lcm_types import lcmt_teleop_joint_command
+
+__all__ = ["JointCommandSender"]
+
+
+class JointCommandSender(LeafSystem):
+    r"""Packs the uplink's held packet into an LCM message (no state; pure translation).
+
+    .. pydrake_system::
+
+        name: JointCommandSender
+        input_ports:
+        - q_sent
+        - sequence_number
+        - send_time
+        - state_sent (optional)
+        - holding (optional)
+        output_ports:
+        - lcm_message
+
+    - ``q_sent``: joint positions of the packet, rad, (J,) (Uplink ``q_sent``).
+    - ``sequence_number``, ``send_time``: the packet's number and time, s (Uplink outputs).
+    - ``state_sent``: [q, q̇, q̈, q⃛] of the packet (Uplink ``state_sent``), (4J,); gives the
+      velocity field (zero when unconnected).
+    - ``holding``: 1 while the FIFO holds after a collision → ``mode = MODE_HOLD``.
+    - ``lcm_message``: ``lcmt_teleop_joint_command`` with utime = send_time in µs,
+      sample_utime = utime − ``delay_s``, the joint names, positions and velocities.
+
+    Before the first packet (sequence −1) the message carries seq = −1; the onboard receiver
+    ignores it. Publish it with ``LcmPublisherSystem.Make(..., publish_period=period,
+    publish_offset=small)``: Drake publishes the pre-update value at an event time, so an
+    offset of a few ms after each uplink tick sends packet k, not k−1.
+    """
+
+    def __init__(self, *, joint_names, delay_s: float):
+        super().__init__()
+        self._joint_names = tuple(str(n) for n in joint_names)
+        n = len(self._joint_names)
+        if n == 0:
+            raise ValueError("joint_names must name at least one joint")
+        if not (np.isfinite(delay_s) and delay_s >= 0.0):
+            raise ValueError(f"delay_s = {delay_s!r} must be non-negative and finite")
+        self._delay_us = int(round(delay_s * 1e6))
+        self._q_sent_input = self.DeclareVectorInputPort("q_sent", n)
+        self._sequence_input = self.DeclareVectorInputPort("sequence_number", 1)
+        self._send_time_input = self.DeclareVectorInputPort("send_time", 1)
+        self._state_input = self.DeclareVectorInputPort("state_sent", 4 * n)
+        self._holding_input = self.DeclareVectorInputPort("holding", 1)
+        self._message_output = self.DeclareAbstractOutputPort(
+            "lcm_message", lambda: AbstractValue.Make(lcmt_teleop_joint_command()),
+            self._calc_lcm_message)
+
+    def get_q_sent_input_port(self):
+        return self._q_sent_input
+
+    def get_sequence_number_input_port(self):
+        return self._sequence_input
+
+    def get_send_time_input_port(self):
+        return self._send_time_input
+
+    def get_state_sent_input_port(self):
+        return self._state_input
+
+    def get_holding_input_port(self):
+        return self._holding_input
+
+    def get_lcm_message_output_port(self):
+        return self._message_output
+
+    def _calc_lcm_message(self, context, output):
+        n = len(self._joint_names)
+        msg = lcmt_teleop_joint_command()
+        msg.seq = int(round(self._sequence_input.Eval(context)[0]))
+        msg.utime = int(round(self._send_time_input.Eval(context)[0] * 1e6))
+        msg.sample_utime = msg.utime - self._delay_us
+        msg.num_joints = n
+        msg.joint_name = list(self._joint_names)
+        msg.joint_position_smoothed = [float(v) for v in self._q_sent_input.Eval(context)]
+        velocity = np.zeros(n)
+        if self._state_input.HasValue(context):
+            velocity = self._state_input.Eval(context)[n:2 * n]
+        msg.joint_velocity_smoothed = [float(v) for v in velocity]
+        holding = self._holding_input.HasValue(context) and self._holding_input.Eval(context)[0] > 0.5
+        msg.mode = lcmt_teleop_joint_command.MODE_HOLD if holding else \
+            lcmt_teleop_joint_command.MODE_TRACK
+        output.set_value(msg)

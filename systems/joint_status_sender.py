@@ -1,0 +1,88 @@
+"""Onboard telemetry as an ``lcmt_onboard_joint_status`` message (pure translation)."""
+
+from __future__ import annotations
+
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem
+
+from telesmooth.lcm_types import lcmt_onboard_joint_status
+
+__all__ = ["JointStatusSender"]
+
+
+class JointStatusSender(LeafSystem):
+    r"""Packs the tracker and receiver outputs into the telemetry message.
+
+    .. pydrake_system::
+
+        name: JointStatusSender
+        input_ports:
+        - q_link
+        - q_motor
+        - position_measured
+        - last_command_seq (optional)
+        - command_rejected (optional)
+        - command_timeout (optional)
+        output_ports:
+        - lcm_message
+
+    - ``q_link``, ``q_motor``: link-side and motor-side joint positions, rad, (J,).
+    - ``position_measured``: tool position from the laser tracker, m, (3,).
+    - the three optional flags come from :class:`JointCommandReceiver` (−1/0/0 unconnected).
+    - ``lcm_message``: utime = the context time in µs; seq counts published messages only
+      when published periodically (seq = round(t / period)), so gaps reveal drops.
+    """
+
+    def __init__(self, *, num_joints: int, period_s: float = 0.01):
+        super().__init__()
+        if num_joints < 1:
+            raise ValueError(f"num_joints = {num_joints!r} must be positive")
+        self._n = int(num_joints)
+        self._period = float(period_s)
+        self._q_link_input = self.DeclareVectorInputPort("q_link", self._n)
+        self._q_motor_input = self.DeclareVectorInputPort("q_motor", self._n)
+        self._position_input = self.DeclareVectorInputPort("position_measured", 3)
+        self._seq_input = self.DeclareVectorInputPort("last_command_seq", 1)
+        self._rejected_input = self.DeclareVectorInputPort("command_rejected", 1)
+        self._timeout_input = self.DeclareVectorInputPort("command_timeout", 1)
+        self._message_output = self.DeclareAbstractOutputPort(
+            "lcm_message", lambda: AbstractValue.Make(lcmt_onboard_joint_status()),
+            self._calc_lcm_message)
+
+    def get_q_link_input_port(self):
+        return self._q_link_input
+
+    def get_q_motor_input_port(self):
+        return self._q_motor_input
+
+    def get_position_measured_input_port(self):
+        return self._position_input
+
+    def get_last_command_seq_input_port(self):
+        return self._seq_input
+
+    def get_command_rejected_input_port(self):
+        return self._rejected_input
+
+    def get_command_timeout_input_port(self):
+        return self._timeout_input
+
+    def get_lcm_message_output_port(self):
+        return self._message_output
+
+    def _optional(self, port, context, default):
+        return port.Eval(context)[0] if port.HasValue(context) else default
+
+    def _calc_lcm_message(self, context, output):
+        msg = lcmt_onboard_joint_status()
+        t = context.get_time()
+        msg.utime = int(round(t * 1e6))
+        msg.seq = int(round(t / self._period))
+        msg.num_joints = self._n
+        msg.joint_position_link = [float(v) for v in self._q_link_input.Eval(context)]
+        msg.joint_position_motor = [float(v) for v in self._q_motor_input.Eval(context)]
+        msg.tool_position_measured = [float(v) for v in self._position_input.Eval(context)]
+        msg.last_command_seq = int(round(self._optional(self._seq_input, context, -1.0)))
+        msg.command_rejected = bool(self._optional(self._rejected_input, context, 0.0) > 0.5)
+        msg.command_timeout = bool(self._optional(self._timeout_input, context, 0.0) > 0.5)
+        output.set_value(msg)
