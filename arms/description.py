@@ -216,18 +216,18 @@ SPACE_ARM_6DOF = ArmDescription(
     base=LinkDescription("base", 20.0, 0.08, (0.0, 0.0, 0.2), (0.3, 0.3, 0.35, 1.0)),
     base_to_first_joint_m=(0.0, 0.0, 0.2),
     joints=(
-        JointDescription("shoulder_yaw", (0.0, 0.0, 1.0), _deg(-170), _deg(170), 60.0,
-                         2000.0, 2.0, 2000.0, 100.0),
-        JointDescription("shoulder_pitch", _PITCH, _deg(-120), _deg(120), 60.0,
-                         2000.0, 2.0, 2000.0, 100.0),
-        JointDescription("elbow_pitch", _PITCH, _deg(-150), _deg(150), 40.0,
-                         1000.0, 1.0, 1500.0, 80.0),
-        JointDescription("wrist_pitch", _PITCH, _deg(-120), _deg(120), 15.0,
-                         200.0, 0.2, 400.0, 30.0),
-        JointDescription("wrist_yaw", (0.0, 0.0, 1.0), _deg(-120), _deg(120), 10.0,
-                         100.0, 0.1, 300.0, 25.0),
-        JointDescription("wrist_roll", (1.0, 0.0, 0.0), _deg(-170), _deg(170), 5.0,
-                         20.0, 0.02, 200.0, 20.0),
+        JointDescription("shoulder_yaw", (0.0, 0.0, 1.0), _deg(-170), _deg(170), 300.0,
+                         2000.0, 2.0, 10000.0, 200.0),
+        JointDescription("shoulder_pitch", _PITCH, _deg(-120), _deg(120), 300.0,
+                         2000.0, 2.0, 10000.0, 200.0),
+        JointDescription("elbow_pitch", _PITCH, _deg(-150), _deg(150), 150.0,
+                         1000.0, 1.0, 5000.0, 141.0),
+        JointDescription("wrist_pitch", _PITCH, _deg(-120), _deg(120), 50.0,
+                         200.0, 0.2, 1000.0, 63.0),
+        JointDescription("wrist_yaw", (0.0, 0.0, 1.0), _deg(-120), _deg(120), 30.0,
+                         100.0, 0.1, 500.0, 45.0),
+        JointDescription("wrist_roll", (1.0, 0.0, 0.0), _deg(-170), _deg(170), 10.0,
+                         20.0, 0.02, 100.0, 20.0),
     ),
     links=(
         LinkDescription("link1", 6.0, 0.07, (0.0, 0.0, 0.25)),
@@ -241,7 +241,8 @@ SPACE_ARM_6DOF = ArmDescription(
     notes=(
         "Our values (the paper's DH table is lost): 0.2 m pedestal, 0.25 m shoulder column, "
         "0.5 m upper arm, 0.4 m forearm, 0.2 m wrist + tool; 17 kg moving mass; springs "
-        "20-2000 N·m/rad keep sqrt(k/I)·h below 0.5 at a 1 ms plant step."
+        "20-2000 N·m/rad keep sqrt(k/I)·h below 0.5 at a 1 ms plant step; motor servos "
+        "kp = 5 k, kd = 2 sqrt(kp J_reflected) (critically damped motor, ringing link)."
     ),
 )
 """The 6-DOF space manipulator (our numbers)."""
@@ -251,12 +252,12 @@ AIR_BEARING_ARM_3DOF = ArmDescription(
     base=LinkDescription("base", 30.0, 0.08, (0.0, 0.0, -0.1), (0.3, 0.3, 0.35, 1.0)),
     base_to_first_joint_m=(0.0, 0.0, 0.0),
     joints=(
-        JointDescription("shoulder", (0.0, 0.0, 1.0), _deg(-170), _deg(170), 60.0,
-                         500.0, 0.5, 400.0, 40.0),
-        JointDescription("elbow", (0.0, 0.0, 1.0), _deg(-170), _deg(170), 40.0,
-                         300.0, 0.3, 300.0, 30.0),
-        JointDescription("wrist", (0.0, 0.0, 1.0), _deg(-170), _deg(170), 15.0,
-                         100.0, 0.1, 150.0, 15.0),
+        JointDescription("shoulder", (0.0, 0.0, 1.0), _deg(-170), _deg(170), 150.0,
+                         500.0, 0.5, 2000.0, 89.0),
+        JointDescription("elbow", (0.0, 0.0, 1.0), _deg(-170), _deg(170), 100.0,
+                         300.0, 0.3, 1500.0, 77.0),
+        JointDescription("wrist", (0.0, 0.0, 1.0), _deg(-170), _deg(170), 40.0,
+                         100.0, 0.1, 750.0, 55.0),
     ),
     links=(
         LinkDescription("link1", 6.0, 0.05, (0.5, 0.0, 0.0)),
@@ -265,8 +266,8 @@ AIR_BEARING_ARM_3DOF = ArmDescription(
     ),
     notes=(
         "The 6-DOF arm's pitch joints laid on their side on air bearings (yaw and roll "
-        "locked): joints about +z, link lengths 0.5/0.4/0.2 m as telesmooth.arms.planar. "
-        "Our values, not the paper's."
+        "locked): joints about +z, link lengths 0.5/0.4/0.2 m as telesmooth.arms.planar; "
+        "motor servos kp = 4-7.5 k, critically damped. Our values, not the paper's."
     ),
 )
 """The air-bearing configuration as a planar 3-joint model (our numbers)."""

@@ -1,0 +1,399 @@
+"""The onboard robot: a flexible-joint arm with its motor servos and the laser tracker.
+
+This is the "plant" end of the teleoperation chain. It takes the held 4 Hz joint commands
+that arrive over the uplink and returns what the onboard sensors see: the 100 Hz
+end-effector position from the laser tracker, plus the link-side and motor-side joint
+angles. Inside it are three parts:
+
+* a MultibodyPlant + SceneGraph with the flexible model of the arm. Each moving joint is a
+  motor-side actuated joint ``<name>_motor`` in series with a link-side joint
+  ``<name>_deflection`` that carries a spring and a damper (see
+  :mod:`telesmooth.arms.description`). The motor servo is the plant's own PD controller on
+  the motor joints (gains from the model's ``drake:controller_gains``). Drake computes it
+  implicitly, so it is stable at a 1 ms step.
+* a :class:`~telesmooth.systems.command_interpolator.CommandInterpolator`, which turns the
+  held commands into the servo's desired state and rejects unsafe commands (the robot
+  holds).
+* a :class:`~telesmooth.systems.laser_tracker.LaserTracker`, which samples the state at
+  100 Hz.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from pydrake.geometry import CollisionFilterDeclaration, GeometrySet
+from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import MatrixGain
+
+from telesmooth.arms.description import AIR_BEARING_ARM_3DOF, SPACE_ARM_6DOF, ArmDescription
+from telesmooth.arms.drake_models import add_arm
+from telesmooth.systems.command_interpolator import (
+    CommandInterpolator,
+    CommandInterpolatorConfig,
+)
+from telesmooth.systems.laser_tracker import LaserTracker, LaserTrackerConfig
+
+__all__ = [
+    "ARM_DESCRIPTIONS",
+    "DISCRETE_CONTACT_APPROXIMATIONS",
+    "FlexibleArmConfig",
+    "FlexibleJointArm",
+    "desired_state_permutation",
+]
+
+ARM_DESCRIPTIONS: dict[str, ArmDescription] = {
+    "space_arm": SPACE_ARM_6DOF,
+    "air_bearing_arm": AIR_BEARING_ARM_3DOF,
+}
+"""The arms that :attr:`FlexibleArmConfig.arm` can name."""
+
+DISCRETE_CONTACT_APPROXIMATIONS = ("lagged", "sap", "similar", "tamsi")
+"""The values of ``MultibodyPlantConfig.discrete_contact_approximation`` that we accept."""
+
+
+@dataclasses.dataclass(frozen=True)
+class FlexibleArmConfig:
+    """Settings of the onboard flexible-joint arm.
+
+    Attributes:
+        arm: Which arm: ``"air_bearing_arm"`` (default; the planar 3-joint laboratory set-up,
+            moving in the world x-y plane) or ``"space_arm"`` (the 6-DOF manipulator).
+        time_step_s: Plant step, s (≥ 0). The default 1 ms gives a discrete plant with
+            implicit PD and damping. 0 gives a continuous plant, integrated by the
+            Simulator's error-controlled integrator.
+        discrete_contact_approximation: One of :data:`DISCRETE_CONTACT_APPROXIMATIONS`.
+            The default is ``"lagged"``. Without contact, all of them give the same
+            result here.
+        gravity_m_per_s2: Gravity vector in the world frame, m/s². The default is zero:
+            in orbit, and on the air-bearing table, where the arm moves in a horizontal
+            plane.
+        interpolator: Settings of the command interpolator (motor set-point).
+        tracker: Settings of the laser tracker.
+        initial_position_rad: Joint angles at t = 0 (motors and links, no deflection), and
+            the position held before the first command, rad; one per joint of ``arm``,
+            within its limits. ``None`` means all zeros.
+    """
+
+    arm: str = "air_bearing_arm"
+    time_step_s: float = 1e-3
+    discrete_contact_approximation: str = "lagged"
+    gravity_m_per_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    interpolator: CommandInterpolatorConfig = dataclasses.field(
+        default_factory=CommandInterpolatorConfig)
+    tracker: LaserTrackerConfig = dataclasses.field(default_factory=LaserTrackerConfig)
+    initial_position_rad: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if self.arm not in ARM_DESCRIPTIONS:
+            raise ValueError(
+                f"FlexibleArmConfig.arm = {self.arm!r} must be one of {tuple(ARM_DESCRIPTIONS)}")
+        step = self.time_step_s
+        if isinstance(step, bool) or not isinstance(step, (int, float)) \
+                or not math.isfinite(step) or step < 0.0:
+            raise ValueError(
+                f"FlexibleArmConfig.time_step_s = {step!r} must be finite and >= 0 "
+                "(0 = continuous plant)")
+        if self.discrete_contact_approximation not in DISCRETE_CONTACT_APPROXIMATIONS:
+            raise ValueError(
+                "FlexibleArmConfig.discrete_contact_approximation = "
+                f"{self.discrete_contact_approximation!r} must be one of "
+                f"{DISCRETE_CONTACT_APPROXIMATIONS}")
+        gravity = _float_tuple("FlexibleArmConfig.gravity_m_per_s2", self.gravity_m_per_s2)
+        if len(gravity) != 3:
+            raise ValueError(
+                f"FlexibleArmConfig.gravity_m_per_s2 = {self.gravity_m_per_s2!r} must have "
+                "3 values (x, y, z)")
+        object.__setattr__(self, "gravity_m_per_s2", gravity)
+        if not isinstance(self.interpolator, CommandInterpolatorConfig):
+            raise ValueError(
+                f"FlexibleArmConfig.interpolator = {self.interpolator!r} must be a "
+                "CommandInterpolatorConfig")
+        if not isinstance(self.tracker, LaserTrackerConfig):
+            raise ValueError(
+                f"FlexibleArmConfig.tracker = {self.tracker!r} must be a LaserTrackerConfig")
+        if self.initial_position_rad is not None:
+            arm = ARM_DESCRIPTIONS[self.arm]
+            q0 = _float_tuple("FlexibleArmConfig.initial_position_rad",
+                              self.initial_position_rad)
+            if len(q0) != arm.num_joints:
+                raise ValueError(
+                    f"FlexibleArmConfig.initial_position_rad = {self.initial_position_rad!r} "
+                    f"must have {arm.num_joints} values (joints {arm.joint_names})")
+            for index, (value, joint) in enumerate(zip(q0, arm.joints)):
+                if not joint.lower_rad <= value <= joint.upper_rad:
+                    raise ValueError(
+                        f"FlexibleArmConfig.initial_position_rad[{index}] ({joint.name}) = "
+                        f"{value!r} is outside the joint limits "
+                        f"[{joint.lower_rad!r}, {joint.upper_rad!r}]")
+            object.__setattr__(self, "initial_position_rad", q0)
+
+    @property
+    def arm_description(self) -> ArmDescription:
+        """The :class:`ArmDescription` named by :attr:`arm`."""
+        return ARM_DESCRIPTIONS[self.arm]
+
+
+def _float_tuple(field: str, values) -> tuple[float, ...]:
+    """``values`` as a tuple of finite floats, or ValueError naming ``field``, index, value."""
+    try:
+        result = tuple(float(value) for value in values)
+    except (TypeError, ValueError):
+        raise ValueError(f"{field} = {values!r} must be a sequence of numbers") from None
+    for index, value in enumerate(result):
+        if not math.isfinite(value):
+            raise ValueError(f"{field}[{index}] = {value!r} must be finite")
+    return result
+
+
+def desired_state_permutation(plant, model_instance, joint_names) -> np.ndarray:
+    """P such that P·[q_d; v_d] (joint order) is the plant's desired state (actuator order).
+
+    ``plant.get_desired_state_input_port(model_instance)`` takes [q_d; v_d] ordered like the
+    instance's actuators (``plant.GetJointActuatorIndices(model_instance)``). Each actuator
+    is matched to its joint by name: the actuator of ``<name>_motor`` belongs to ``name``.
+
+    Returns:
+        A (2n, 2n) permutation matrix.
+
+    Raises:
+        ValueError: if the actuators and ``joint_names`` do not match one to one.
+    """
+    names = list(joint_names)
+    n = len(names)
+    actuators = [plant.get_joint_actuator(index)
+                 for index in plant.GetJointActuatorIndices(model_instance)]
+    actuated = [actuator.joint().name() for actuator in actuators]
+    expected = sorted(name + "_motor" for name in names)
+    if sorted(actuated) != expected:
+        raise ValueError(
+            f"the actuated joints {actuated} of the model do not match joint_names {names} "
+            "(expected one actuated '<name>_motor' joint per name)")
+    permutation = np.zeros((2 * n, 2 * n))
+    for row, joint_name in enumerate(actuated):
+        column = names.index(joint_name.removesuffix("_motor"))
+        permutation[row, column] = 1.0
+        permutation[n + row, n + column] = 1.0
+    return permutation
+
+
+class FlexibleJointArm(Diagram):
+    r"""The onboard flexible-joint arm: command interpolation, motor servos, laser tracker.
+
+    .. pydrake_system::
+
+        name: FlexibleJointArm
+        input_ports:
+        - q_commanded
+        output_ports:
+        - position_measured
+        - q_link
+        - q_motor
+        - tracker_sample_time
+        - command_rejected
+        - state_desired
+        - plant_state
+        - query_object
+
+    Ports (n = number of joints: 3 for the air-bearing arm, 6 for the space arm; joint order
+    = :attr:`joint_names`):
+
+    - ``q_commanded``: the held joint-position command (4 Hz uplink, zero-order hold), rad,
+      (n,). Must be connected or fixed. The upstream hold must start at the robot's pose
+      (see "before the first command").
+    - ``position_measured``: laser-tracker end-effector position p_WT (origin of the
+      ``tool`` frame in world), m, (3,), sampled every ``tracker.period_s`` (100 Hz) and
+      held; for the air-bearing arm it moves in the world x-y plane (z = 0).
+    - ``q_link``: link-side joint angles (motor + deflection), rad, (n,), same samples.
+    - ``q_motor``: motor-side joint angles, rad, (n,), same samples.
+    - ``tracker_sample_time``: time of the held tracker sample, s, (1,).
+    - ``command_rejected``: 1.0 while the last received command was rejected (not finite,
+      or outside the joint limits) and the robot holds its previous target, else 0.0, (1,).
+    - ``state_desired``: the servo set-point [q_d; v_d], rad and rad/s, (2n,), joint order.
+    - ``plant_state``: the full plant state [q; v], (4n,): per joint (motor, deflection)
+      positions in the plant's order, then velocities (see ``plant.GetStateNames()``).
+    - ``query_object``: SceneGraph's query output, for visualizers.
+
+    Motor servo (the plant's PD, per motor joint i, clamped to the motor's effort limit):
+
+        τ_i = kp_i·(q_d,i − q_motor,i) + kd_i·(v_d,i − v_motor,i)
+
+    Link side: τ_spring,i = −k_i·δ_i − c_i·δ̇_i, with δ_i = the deflection and
+    q_link,i = q_motor,i + δ_i.
+
+    The set-point (see :class:`CommandInterpolator`): a new command u received at the poll
+    t₀ (1 ms polls) starts a ramp from the current set-point q₀ = q_d(t₀):
+
+        "linear": q_d(t) = q₀ + clip((t − t₀)/T, 0, 1)·(u − q₀),
+                  v_d(t) = (u − q₀)/T on [t₀, t₀ + T), else 0     (T = 0.25 s)
+        "zoh":    q_d(t) = u, v_d(t) = 0
+
+    Before the first command, and at t = 0, the set-point is ``initial_position_rad``
+    (zeros by default) with zero velocity. The default plant state is that pose with zero
+    deflection and zero velocity, and the tracker's first sample is taken at t = 0 (at
+    Simulator initialization), so the robot is at rest and holds. A command that is not
+    finite or is outside the limits is never sent to the servo: the robot keeps its
+    previous target and ``command_rejected`` is 1.0 until a valid command is received.
+
+    Collision filtering: the rotor bodies between the links break Drake's automatic
+    parent/child filter. The SDF declares filter groups for consecutive links, and this
+    class applies the same exclusions again, so no consecutive link pair can be in contact.
+    """
+
+    def __init__(self, config: FlexibleArmConfig = FlexibleArmConfig()):
+        """Builds the diagram.
+
+        Args:
+            config: The arm, plant step, gravity, initial pose and sub-system settings.
+
+        Raises:
+            ValueError: if ``config`` is not a FlexibleArmConfig. Invalid field values are
+                already rejected when the config is constructed.
+        """
+        super().__init__()
+        if not isinstance(config, FlexibleArmConfig):
+            raise ValueError(f"config = {config!r} must be a FlexibleArmConfig")
+        arm = config.arm_description
+        n = arm.num_joints
+        q0 = (np.zeros(n) if config.initial_position_rad is None
+              else np.array(config.initial_position_rad))
+        self._config = config
+        self._arm = arm
+        self._joint_names = arm.joint_names
+        builder = DiagramBuilder()
+
+        # Plant: the flexible model (motor joint + spring/damper joint per joint).
+        plant, scene_graph = AddMultibodyPlant(
+            MultibodyPlantConfig(
+                time_step=config.time_step_s,
+                discrete_contact_approximation=config.discrete_contact_approximation),
+            builder)
+        instance = add_arm(plant, arm, flexible=True)
+        plant.mutable_gravity_field().set_gravity_vector(np.array(config.gravity_m_per_s2))
+        for name, angle in zip(arm.joint_names, q0):
+            plant.GetJointByName(name + "_motor", instance).set_default_angle(angle)
+            plant.GetJointByName(name + "_deflection", instance).set_default_angle(0.0)
+        plant.Finalize()
+        self._exclude_consecutive_links(plant, scene_graph, arm)
+
+        # Motor set-point: held 4 Hz commands → [q_d; v_d], unsafe commands rejected.
+        interpolator = builder.AddNamedSystem("command_interpolator", CommandInterpolator(
+            config.interpolator, joint_names=arm.joint_names, lower_rad=arm.joint_lower_rad,
+            upper_rad=arm.joint_upper_rad, initial_position_rad=q0))
+        # Joint order → actuator order for the plant's PD (desired-state input).
+        to_actuator_order = builder.AddNamedSystem(
+            "desired_state_to_actuator_order",
+            MatrixGain(desired_state_permutation(plant, instance, arm.joint_names)))
+        builder.Connect(interpolator.get_state_desired_output_port(),
+                        to_actuator_order.get_input_port())
+        builder.Connect(to_actuator_order.get_output_port(),
+                        plant.get_desired_state_input_port(instance))
+
+        # Onboard sensors: the 100 Hz laser tracker and the joint encoders.
+        tracker = builder.AddNamedSystem("laser_tracker", LaserTracker(
+            config.tracker, plant=plant, model_instance=instance,
+            joint_names=arm.joint_names, tool_frame_name=arm.tool_frame))
+        builder.Connect(plant.get_state_output_port(), tracker.get_plant_state_input_port())
+
+        builder.ExportInput(interpolator.get_q_commanded_input_port(), "q_commanded")
+        builder.ExportOutput(tracker.get_position_measured_output_port(), "position_measured")
+        builder.ExportOutput(tracker.get_q_link_output_port(), "q_link")
+        builder.ExportOutput(tracker.get_q_motor_output_port(), "q_motor")
+        builder.ExportOutput(tracker.get_sample_time_output_port(), "tracker_sample_time")
+        builder.ExportOutput(interpolator.get_command_rejected_output_port(),
+                             "command_rejected")
+        builder.ExportOutput(interpolator.get_state_desired_output_port(), "state_desired")
+        builder.ExportOutput(plant.get_state_output_port(), "plant_state")
+        builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
+        builder.BuildInto(self)
+        self.set_name(f"flexible_{arm.name}")
+
+        self._plant = plant
+        self._scene_graph = scene_graph
+        self._model_instance = instance
+        self._interpolator = interpolator
+        self._tracker = tracker
+
+    @staticmethod
+    def _exclude_consecutive_links(plant, scene_graph, arm: ArmDescription) -> None:
+        """Excludes collisions between the arm's filtered link pairs (consecutive links)."""
+        manager = scene_graph.collision_filter_manager()
+        for body_a, body_b in arm.filtered_pairs():
+            geometries_a = plant.GetCollisionGeometriesForBody(plant.GetBodyByName(body_a))
+            geometries_b = plant.GetCollisionGeometriesForBody(plant.GetBodyByName(body_b))
+            manager.Apply(CollisionFilterDeclaration().ExcludeBetween(
+                GeometrySet(geometries_a), GeometrySet(geometries_b)))
+
+    # -- accessors ------------------------------------------------------------------------
+
+    @property
+    def config(self) -> FlexibleArmConfig:
+        return self._config
+
+    @property
+    def arm(self) -> ArmDescription:
+        return self._arm
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """Joint names, base to tip: the order of every joint-space port."""
+        return self._joint_names
+
+    @property
+    def num_joints(self) -> int:
+        return len(self._joint_names)
+
+    @property
+    def plant(self):
+        """The MultibodyPlant (flexible model, finalized)."""
+        return self._plant
+
+    @property
+    def scene_graph(self):
+        return self._scene_graph
+
+    @property
+    def model_instance(self):
+        """The arm's model instance in :attr:`plant`."""
+        return self._model_instance
+
+    @property
+    def interpolator(self) -> CommandInterpolator:
+        return self._interpolator
+
+    @property
+    def tracker(self) -> LaserTracker:
+        return self._tracker
+
+    def SetInitialPositions(self, root_context, q_rad) -> None:
+        """Puts the arm at rest at ``q_rad`` in ``root_context`` and makes it hold there.
+
+        Motors and links at ``q_rad`` (zero deflection), zero velocities, the interpolator
+        holding ``q_rad`` from the context's time, and the tracker's sample retaken. The
+        upstream command hold must start at ``q_rad`` too: a different held ``q_commanded``
+        is a new command at the next poll.
+
+        Args:
+            root_context: A context of the root diagram that contains this arm (or of
+                this arm itself).
+            q_rad: Joint angles, rad; shape (n,), finite and within the joint limits.
+
+        Raises:
+            ValueError: naming the joint and value, if ``q_rad`` is invalid.
+        """
+        interpolator_context = self._interpolator.GetMyMutableContextFromRoot(root_context)
+        # Validates q_rad (shape, finite, limits) before anything is changed.
+        self._interpolator.SetHoldPosition(interpolator_context, q_rad)
+        q = np.asarray(q_rad, dtype=float)
+        plant_context = self._plant.GetMyMutableContextFromRoot(root_context)
+        for name, angle in zip(self._joint_names, q):
+            self._plant.GetJointByName(name + "_motor", self._model_instance).set_angle(
+                plant_context, angle)
+            self._plant.GetJointByName(name + "_deflection", self._model_instance).set_angle(
+                plant_context, 0.0)
+        self._plant.SetVelocities(plant_context, self._model_instance,
+                                  np.zeros(self._plant.num_velocities(self._model_instance)))
+        self._tracker.Sample(self._tracker.GetMyMutableContextFromRoot(root_context))

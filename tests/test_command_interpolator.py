@@ -1,0 +1,302 @@
+"""CommandInterpolator: closed-form ramp/step set-points, command rejection (hold + flag),
+recovery, port contract, and validation messages."""
+
+import logging
+import math
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+
+from telesmooth.systems.command_interpolator import (
+    CommandInterpolator,
+    CommandInterpolatorConfig,
+    command_violation,
+    ramp_desired_state,
+)
+
+NAMES = ("shoulder", "elbow")
+LOWER = np.array([-1.0, -2.0])
+UPPER = np.array([1.0, 2.0])
+Q0 = np.array([0.1, -0.2])
+POLL = 0.001
+RAMP = 0.25
+ATOL = 1e-12
+
+
+def make_dut(interpolation="linear", initial_position_rad=Q0):
+    return CommandInterpolator(
+        CommandInterpolatorConfig(interpolation=interpolation),
+        joint_names=NAMES, lower_rad=LOWER, upper_rad=UPPER,
+        initial_position_rad=initial_position_rad)
+
+
+class Harness:
+    """The dut alone in a Simulator; the held command is changed between AdvanceTo calls."""
+
+    def __init__(self, dut, command=Q0):
+        self.dut = dut
+        self.simulator = Simulator(dut)
+        self.context = self.simulator.get_mutable_context()
+        self.port = dut.get_q_commanded_input_port()
+        self.port.FixValue(self.context, np.asarray(command, dtype=float))
+        self.simulator.Initialize()
+
+    def hold_from(self, time_s, command):
+        """Advances to ``time_s``, then holds ``command`` on the input from there on."""
+        self.simulator.AdvanceTo(time_s)
+        self.port.FixValue(self.context, np.asarray(command, dtype=float))
+
+    def desired_at(self, time_s):
+        """(q_d, v_d) at ``time_s`` (chosen between polls, so no poll is pending at it)."""
+        self.simulator.AdvanceTo(time_s)
+        value = self.dut.get_state_desired_output_port().Eval(self.context)
+        return value[:2], value[2:]
+
+    def rejected(self):
+        return self.dut.get_command_rejected_output_port().Eval(self.context)[0]
+
+
+def first_poll_after(time_s):
+    return math.ceil(time_s / POLL) * POLL
+
+
+# -- pure functions -----------------------------------------------------------------------
+
+
+def test_ramp_closed_form_before_during_and_after():
+    start, target = np.array([0.0, 1.0]), np.array([0.5, -1.0])
+    velocity = (target - start) / 0.25
+    q, v = ramp_desired_state(start, target, 2.0, 0.25, 1.9)  # before t0: clipped, no velocity
+    np.testing.assert_allclose(q, start, atol=0, rtol=0)
+    np.testing.assert_allclose(v, 0.0, atol=0, rtol=0)
+    q, v = ramp_desired_state(start, target, 2.0, 0.25, 2.0)  # at t0
+    np.testing.assert_allclose(q, start, atol=0, rtol=0)
+    np.testing.assert_allclose(v, velocity, atol=0, rtol=0)
+    q, v = ramp_desired_state(start, target, 2.0, 0.25, 2.1)  # s = 0.4
+    np.testing.assert_allclose(q, [0.2, 0.2], atol=ATOL, rtol=0)
+    np.testing.assert_allclose(v, [2.0, -8.0], atol=ATOL, rtol=0)
+    q, v = ramp_desired_state(start, target, 2.0, 0.25, 2.25)  # end: exactly the target
+    assert np.array_equal(q, target)
+    np.testing.assert_allclose(v, 0.0, atol=0, rtol=0)
+
+
+def test_command_violation_names_joint_and_value():
+    assert command_violation(np.array([0.5, 2.0]), LOWER, UPPER, NAMES) is None  # on a limit
+    assert command_violation(np.array([0.5, np.nan]), LOWER, UPPER, NAMES) == (
+        "q_commanded[1] (elbow) = nan is not finite")
+    assert command_violation(np.array([np.inf, 0.0]), LOWER, UPPER, NAMES) == (
+        "q_commanded[0] (shoulder) = inf is not finite")
+    assert command_violation(np.array([-1.5, 0.0]), LOWER, UPPER, NAMES) == (
+        "q_commanded[0] (shoulder) = -1.5 is outside the joint limits [-1.0, 1.0]")
+
+
+# -- port contract ------------------------------------------------------------------------
+
+
+def test_port_contract_and_output_before_first_command():
+    dut = make_dut()
+    assert dut.num_input_ports() == 1 and dut.num_output_ports() == 2
+    assert dut.get_input_port(0).get_name() == "q_commanded"
+    assert dut.get_input_port(0).size() == 2
+    assert [dut.get_output_port(i).get_name() for i in range(2)] == [
+        "state_desired", "command_rejected"]
+    assert dut.get_state_desired_output_port().size() == 4
+    assert dut.get_command_rejected_output_port().size() == 1
+    # Outputs come from state and time only: no algebraic loop through the plant.
+    assert not dut.HasAnyDirectFeedthrough()
+    context = dut.CreateDefaultContext()
+    np.testing.assert_array_equal(
+        dut.get_state_desired_output_port().Eval(context), np.concatenate([Q0, [0, 0]]))
+    assert dut.get_command_rejected_output_port().Eval(context)[0] == 0.0
+
+
+def test_holds_initial_position_while_input_equals_it():
+    harness = Harness(make_dut(), command=Q0)
+    for time_s in (0.0005, 0.1234, 0.7777):
+        q, v = harness.desired_at(time_s)
+        np.testing.assert_array_equal(q, Q0)
+        np.testing.assert_array_equal(v, [0.0, 0.0])
+    assert harness.rejected() == 0.0
+
+
+# -- interpolation ------------------------------------------------------------------------
+
+
+def test_linear_ramp_against_closed_form():
+    harness = Harness(make_dut("linear"))
+    a = np.array([0.6, 0.8])
+    harness.hold_from(0.1005, a)
+    t0 = first_poll_after(0.1005)  # 0.101: the first poll that sees the new command
+    q, v = harness.desired_at(0.1009)  # not polled yet: still holding
+    np.testing.assert_array_equal(q, Q0)
+    np.testing.assert_array_equal(v, [0.0, 0.0])
+    for time_s in (0.1013, 0.2015, 0.3455):
+        q, v = harness.desired_at(time_s)
+        s = (time_s - t0) / RAMP
+        np.testing.assert_allclose(q, Q0 + s * (a - Q0), atol=1e-12, rtol=0)
+        np.testing.assert_allclose(v, (a - Q0) / RAMP, atol=1e-12, rtol=0)
+    start, target, start_time = harness.dut.get_ramp(harness.context)
+    np.testing.assert_array_equal(start, Q0)
+    np.testing.assert_array_equal(target, a)
+    assert start_time == pytest.approx(t0, abs=1e-12)
+    q, v = harness.desired_at(t0 + RAMP + 0.0005)  # after the ramp: target, zero velocity
+    np.testing.assert_array_equal(q, a)
+    np.testing.assert_array_equal(v, [0.0, 0.0])
+
+
+def test_command_mid_ramp_starts_new_ramp_from_current_set_point():
+    harness = Harness(make_dut("linear"))
+    a, b = np.array([0.6, 0.8]), np.array([-0.4, 1.2])
+    harness.hold_from(0.1005, a)
+    harness.hold_from(0.2005, b)
+    t0, t1 = first_poll_after(0.1005), first_poll_after(0.2005)
+    q1 = Q0 + (t1 - t0) / RAMP * (a - Q0)  # the set-point when b is seen
+    q, v = harness.desired_at(t1 + 0.0505)
+    np.testing.assert_allclose(q, q1 + 0.0505 / RAMP * (b - q1), atol=1e-12, rtol=0)
+    np.testing.assert_allclose(v, (b - q1) / RAMP, atol=1e-12, rtol=0)
+    q, v = harness.desired_at(t1 + RAMP + 0.0005)
+    np.testing.assert_array_equal(q, b)
+    np.testing.assert_array_equal(v, [0.0, 0.0])
+
+
+def test_set_point_is_continuous_between_and_across_polls():
+    harness = Harness(make_dut("linear"))
+    a = np.array([0.6, 0.8])
+    harness.hold_from(0.1005, a)
+    times = np.arange(0.1006, 0.4, 0.00037)  # not aligned with the polls
+    positions = np.array([harness.desired_at(t)[0] for t in times])
+    largest_jump = np.abs(np.diff(positions, axis=0)).max()
+    # |Δq| ≤ |v|·Δt = (0.7/0.25 rad/s)·0.37 ms ≈ 1.04e-3 rad.
+    assert largest_jump <= np.abs(a - Q0).max() / RAMP * 0.00037 + 1e-12
+
+
+def test_zoh_steps_with_zero_velocity():
+    harness = Harness(make_dut("zoh"))
+    a = np.array([0.6, 0.8])
+    harness.hold_from(0.1005, a)
+    q, v = harness.desired_at(0.1009)
+    np.testing.assert_array_equal(q, Q0)
+    for time_s in (0.1011, 0.2333):
+        q, v = harness.desired_at(time_s)
+        np.testing.assert_array_equal(q, a)
+        np.testing.assert_array_equal(v, [0.0, 0.0])
+
+
+# -- rejection, hold, recovery ------------------------------------------------------------
+
+
+@pytest.mark.parametrize("bad", [[0.3, np.nan], [np.inf, 0.0], [0.3, 2.5], [-1.01, 0.0]])
+def test_unsafe_command_keeps_the_target_and_raises_the_flag(bad, caplog):
+    harness = Harness(make_dut("linear"))
+    a = np.array([0.6, 0.8])
+    harness.hold_from(0.1005, a)
+    t0 = first_poll_after(0.1005)
+    with caplog.at_level(logging.WARNING):
+        harness.hold_from(0.2005, bad)  # mid-ramp
+        q, v = harness.desired_at(0.2205)
+    # The ramp to the last valid target continues unchanged; then the robot holds.
+    s = (0.2205 - t0) / RAMP
+    np.testing.assert_allclose(q, Q0 + s * (a - Q0), atol=1e-12, rtol=0)
+    np.testing.assert_allclose(v, (a - Q0) / RAMP, atol=1e-12, rtol=0)
+    assert harness.rejected() == 1.0
+    q, v = harness.desired_at(0.6005)  # the bad command is still held on the input
+    np.testing.assert_array_equal(q, a)
+    np.testing.assert_array_equal(v, [0.0, 0.0])
+    assert harness.rejected() == 1.0
+    assert harness.dut.get_rejected_command_count(harness.context) == 1  # counted once
+    joint = 1 if (np.isnan(bad[1]) or abs(bad[1]) > 2) else 0
+    assert f"q_commanded[{joint}] ({NAMES[joint]}) = {float(bad[joint])!r}" in caplog.text
+
+
+def test_recovery_on_next_valid_command():
+    harness = Harness(make_dut("linear"))
+    a, b = np.array([0.6, 0.8]), np.array([0.2, 0.4])
+    harness.hold_from(0.1005, a)
+    harness.hold_from(0.4005, [np.nan, np.nan])
+    harness.hold_from(0.5005, [5.0, 0.0])  # a different bad command: counted too
+    harness.simulator.AdvanceTo(0.6005)
+    assert harness.rejected() == 1.0
+    assert harness.dut.get_rejected_command_count(harness.context) == 2
+    harness.hold_from(0.7005, b)
+    t1 = first_poll_after(0.7005)
+    q, v = harness.desired_at(t1 + 0.1)
+    np.testing.assert_allclose(q, a + 0.1 / RAMP * (b - a), atol=1e-12, rtol=0)
+    np.testing.assert_allclose(v, (b - a) / RAMP, atol=1e-12, rtol=0)
+    assert harness.rejected() == 0.0
+    assert harness.dut.get_rejected_command_count(harness.context) == 2
+
+
+def test_resending_the_held_target_clears_the_flag_without_a_new_ramp():
+    harness = Harness(make_dut("linear"))
+    a = np.array([0.6, 0.8])
+    harness.hold_from(0.1005, a)
+    harness.hold_from(0.4005, [0.0, np.nan])
+    harness.simulator.AdvanceTo(0.45)
+    assert harness.rejected() == 1.0
+    harness.hold_from(0.5005, a)
+    q, v = harness.desired_at(0.5105)
+    assert harness.rejected() == 0.0
+    np.testing.assert_array_equal(q, a)
+    np.testing.assert_array_equal(v, [0.0, 0.0])
+    assert harness.dut.get_ramp(harness.context)[2] == pytest.approx(0.101, abs=1e-12)
+
+
+def test_set_hold_position_validates_and_holds():
+    harness = Harness(make_dut("linear"))
+    harness.simulator.AdvanceTo(0.3)
+    harness.dut.SetHoldPosition(harness.context, [0.5, 0.5])
+    harness.port.FixValue(harness.context, [0.5, 0.5])  # the upstream hold agrees
+    q, v = harness.desired_at(0.3005)
+    np.testing.assert_array_equal(q, [0.5, 0.5])
+    np.testing.assert_array_equal(v, [0.0, 0.0])
+    assert harness.dut.get_ramp(harness.context)[2] == pytest.approx(0.3, abs=1e-12)
+    with pytest.raises(ValueError, match=r"q_commanded\[1\] \(elbow\) = 3.0 is outside"):
+        harness.dut.SetHoldPosition(harness.context, [0.5, 3.0])
+
+
+# -- validation ---------------------------------------------------------------------------
+
+
+def test_default_config_is_valid():
+    config = CommandInterpolatorConfig()
+    assert (config.interpolation, config.ramp_duration_s, config.poll_period_s) == (
+        "linear", 0.25, 0.001)
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    ({"interpolation": "cubic"}, r"CommandInterpolatorConfig.interpolation = 'cubic'"),
+    ({"ramp_duration_s": 0.0}, r"CommandInterpolatorConfig.ramp_duration_s = 0.0 must be"),
+    ({"ramp_duration_s": -0.25}, r"ramp_duration_s = -0.25 must be positive"),
+    ({"poll_period_s": float("nan")}, r"CommandInterpolatorConfig.poll_period_s = nan"),
+    ({"poll_period_s": "fast"}, r"poll_period_s = 'fast' must be a number"),
+])
+def test_config_errors_name_field_and_value(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        CommandInterpolatorConfig(**kwargs)
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    ({"initial_position_rad": [0.0, 2.5]},
+     r"initial_position_rad\[1\] \(elbow\) = 2.5 is outside the joint limits \[-2.0, 2.0\]"),
+    ({"initial_position_rad": [np.nan, 0.0]}, r"initial_position_rad\[0\] = nan must be finite"),
+    ({"initial_position_rad": [0.0]}, r"initial_position_rad = \[0.0\] must have 2 values"),
+    ({"lower_rad": [1.0, -2.0]},
+     r"lower_rad\[0\] \(shoulder\) = 1.0 must be below upper_rad\[0\] = 1.0"),
+    ({"upper_rad": [1.0, np.inf]}, r"upper_rad\[1\] = inf must be finite"),
+    ({"joint_names": ("a", "a")}, r"joint_names = \('a', 'a'\) must be unique"),
+    ({"joint_names": ()}, r"joint_names = \(\) must be a non-empty"),
+])
+def test_constructor_errors_name_field_joint_and_value(kwargs, match):
+    arguments = dict(joint_names=NAMES, lower_rad=LOWER, upper_rad=UPPER,
+                     initial_position_rad=Q0)
+    arguments.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        CommandInterpolator(CommandInterpolatorConfig(), **arguments)
+
+
+def test_wrong_command_size_is_refused_by_the_port():
+    dut = make_dut()
+    context = dut.CreateDefaultContext()
+    with pytest.raises(Exception, match="size"):
+        dut.get_q_commanded_input_port().FixValue(context, np.zeros(3))
