@@ -233,9 +233,9 @@ SPACE_ARM_6DOF = ArmDescription(
         LinkDescription("link1", 6.0, 0.07, (0.0, 0.0, 0.25)),
         LinkDescription("link2", 5.0, 0.05, (0.5, 0.0, 0.0)),
         LinkDescription("link3", 3.5, 0.045, (0.4, 0.0, 0.0)),
-        LinkDescription("link4", 1.2, 0.04, (0.1, 0.0, 0.0)),
-        LinkDescription("link5", 0.8, 0.035, (0.05, 0.0, 0.0)),
-        LinkDescription("link6", 0.5, 0.03, (0.05, 0.0, 0.0), (0.9, 0.5, 0.1, 1.0)),
+        LinkDescription("link4", 1.2, 0.04, (0.12, 0.0, 0.0)),
+        LinkDescription("link5", 0.8, 0.035, (0.04, 0.0, 0.0)),
+        LinkDescription("link6", 0.5, 0.03, (0.04, 0.0, 0.0), (0.9, 0.5, 0.1, 1.0)),
     ),
     extra_filtered_pairs=(("link4", "link6"),),
     notes=(
