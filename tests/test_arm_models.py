@@ -250,3 +250,18 @@ def test_arm_description_validation():
         ArmDescription("x", link, (0, 0, 0), (joint,), (link,))
     with pytest.raises(ValueError, match="one link per joint"):
         ArmDescription("x", link, (0, 0, 0), (), (link,))
+
+
+def test_add_arm_loads_an_edited_description_not_the_committed_file():
+    import dataclasses
+    longer = dataclasses.replace(
+        AIR_BEARING_ARM_3DOF,
+        links=(dataclasses.replace(AIR_BEARING_ARM_3DOF.links[0], segment_m=(0.6, 0.0, 0.0)),)
+        + AIR_BEARING_ARM_3DOF.links[1:])
+    plant = MultibodyPlant(0.0)
+    add_arm(plant, longer, flexible=False)
+    plant.Finalize()
+    context = plant.CreateDefaultContext()
+    tip = plant.CalcPointsPositions(context, plant.GetFrameByName("tool"), np.zeros(3),
+                                    plant.world_frame())
+    assert tip[0, 0] == pytest.approx(0.6 + 0.4 + 0.2)
