@@ -19,14 +19,17 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import math
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-from telesmooth.smoothing.trajectory_io import check_uniform_time
+from telesmooth.smoothing.trajectory_io import (
+    check_uniform_time,
+    parse_csv_number,
+    read_csv_table,
+)
 
 __all__ = [
     "PLANAR_POSE_NAMES",
@@ -235,22 +238,11 @@ def read_haptic_csv(path, *, expected_pose_names: Sequence[str] | None = None) -
             not strictly increasing and uniform.
     """
     path = Path(path)
-    try:
-        with path.open(newline="") as handle:
-            rows = list(csv.reader(handle))
-    except OSError as error:
-        raise ValueError(f"{path}: cannot read ({error.strerror})") from None
-    # Keep each row's line number in the file, skipping blank lines.
-    numbered = [(line, row) for line, row in enumerate(rows, start=1)
-                if row and any(cell.strip() for cell in row)]
-    if not numbered:
-        raise ValueError(f"{path}: the file is empty; expected a header 't,<pose names...>'")
-    header = [cell.strip() for cell in numbered[0][1]]
-    if header[0] != _TIME_COLUMN:
-        raise ValueError(
-            f"{path}: the first header column is {header[0]!r}; it must be 't' (seconds), "
-            "followed by the pose columns and optionally 'enable'"
-        )
+    header, data_rows = read_csv_table(
+        path,
+        expected_header_hint="t,<pose names...>",
+        after_time_hint="the pose columns and optionally 'enable'",
+    )
     for index, name in enumerate(header):
         if not name:
             raise ValueError(f"{path}: header column {index + 1} has an empty name")
@@ -265,26 +257,15 @@ def read_haptic_csv(path, *, expected_pose_names: Sequence[str] | None = None) -
         raise ValueError(f"{path}: the header {header} names no pose columns after 't'")
     _check_expected_names(pose_names, expected_pose_names, source=str(path))
 
-    values = np.empty((len(numbered) - 1, len(header)))
-    for data_index, (line, row) in enumerate(numbered[1:]):
+    values = np.empty((len(data_rows), len(header)))
+    for data_index, (line, row) in enumerate(data_rows):
         if len(row) != len(header):
             raise ValueError(
                 f"{path}: line {line} has {len(row)} value(s); the header has {len(header)} "
                 f"columns {header}"
             )
         for col, cell in enumerate(row):
-            column = header[col]
-            try:
-                value = float(cell)
-            except ValueError:
-                raise ValueError(
-                    f"{path}: line {line}, column {column!r}: {cell.strip()!r} is not a number"
-                ) from None
-            if not math.isfinite(value):
-                raise ValueError(
-                    f"{path}: line {line}, column {column!r}: value {cell.strip()!r} is not "
-                    "finite"
-                )
+            value = parse_csv_number(cell, path=path, line=line, column=header[col])
             if has_enable and col == len(header) - 1 and value not in (0.0, 1.0):
                 raise ValueError(
                     f"{path}: line {line}, column 'enable': value {cell.strip()!r} must be "

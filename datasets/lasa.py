@@ -415,19 +415,64 @@ def lasa_operator_session(
     )
 
     # (4) One elbow branch for the whole session keeps q continuous.
+    return _operator_session_from_xy(
+        t_s,
+        xy_m,
+        mapping.end_effector_angle_rad,
+        arm,
+        shape=demo.shape,
+        demo_index=demo.demo_index,
+        mapping=mapping,
+        describe=f"LASA shape {shape!r} demo_index {demo.demo_index}",
+        context=f" with {mapping!r}",
+    )
+
+
+def _operator_session_from_xy(
+    t_s: np.ndarray,
+    xy_m: np.ndarray,
+    phi_rad: float,
+    arm: PlanarArm,
+    *,
+    shape: str,
+    demo_index: int,
+    mapping: WorkspaceMapping,
+    describe: str,
+    context: str = "",
+    advice: str = "",
+) -> OperatorSession:
+    """Solve the planar 3R inverse kinematics for a whole session and wrap it up.
+
+    The elbow branch +1 is tried first, then -1; the first branch that reaches every sample
+    is used for the whole session (so q is continuous). ``t_s``, ``xy_m`` and the joint
+    targets are made read-only in place and stored in the session.
+
+    Args:
+        t_s: Sample times, s; shape (K,).
+        xy_m: End-effector targets, m; shape (K, 2).
+        phi_rad: Fixed end-effector angle, rad.
+        arm: The arm; must have three joints.
+        shape, demo_index, mapping: Stored in the session as they are.
+        describe: Names the session at the start of the error message, e.g.
+            ``"LASA shape 'Angle' demo_index 0"``.
+        context: Text put after the arm's joints in the error message (e.g. the mapping).
+        advice: Text put at the end of the error message (e.g. what to change).
+
+    Raises:
+        ValueError: If some sample is unreachable on both elbow branches; the message names
+            the first sample unreachable with elbow +1.
+    """
     first_failure = None
     for elbow in (+1, -1):
-        q_rad, reachable = planar_3r_inverse_kinematics(
-            xy_m, mapping.end_effector_angle_rad, arm, elbow=elbow
-        )
+        q_rad, reachable = planar_3r_inverse_kinematics(xy_m, phi_rad, arm, elbow=elbow)
         if np.all(reachable):
             return OperatorSession(
                 t_s=_read_only(t_s),
                 xy_m=_read_only(xy_m),
                 q_rad=_read_only(q_rad),
                 joint_names=arm.joint_names,
-                shape=demo.shape,
-                demo_index=demo.demo_index,
+                shape=shape,
+                demo_index=demo_index,
                 mapping=mapping,
                 elbow=elbow,
             )
@@ -435,8 +480,8 @@ def lasa_operator_session(
             first_failure = int(np.argmin(reachable))
     k = first_failure
     raise ValueError(
-        f"LASA shape {shape!r} demo_index {demo.demo_index} is not reachable by the arm "
-        f"(joints {arm.joint_names!r}) with {mapping!r}: with elbow +1 the first unreachable "
-        f"sample is k = {k} at t = {t_s[k]:.2f} s, xy_m = ({xy_m[k, 0]:.4f}, {xy_m[k, 1]:.4f}) m "
-        "(outside the workspace or the joint limits), and elbow -1 fails too"
+        f"{describe} is not reachable by the arm (joints {arm.joint_names!r}){context}: with "
+        f"elbow +1 the first unreachable sample is k = {k} at t = {t_s[k]:.2f} s, xy_m = "
+        f"({xy_m[k, 0]:.4f}, {xy_m[k, 1]:.4f}) m (outside the workspace or the joint limits), "
+        f"and elbow -1 fails too{advice}"
     )

@@ -25,8 +25,8 @@ import operator
 import numpy as np
 import scipy.signal
 
-from telesmooth.arms.planar import AIR_BEARING_ARM, PlanarArm, planar_3r_inverse_kinematics
-from telesmooth.datasets.lasa import OperatorSession, WorkspaceMapping
+from telesmooth.arms.planar import AIR_BEARING_ARM, PlanarArm
+from telesmooth.datasets.lasa import OperatorSession, WorkspaceMapping, _operator_session_from_xy
 from telesmooth.smoothing.validation import check_positive_int, check_positive_scalar
 
 __all__ = [
@@ -453,32 +453,17 @@ def synthetic_operator_session(
         hold_end_s=config.hold_end_s,
         haptic_rate_hz=config.haptic_rate_hz,
     )
-    first_failure = None
-    for elbow in (+1, -1):
-        q_rad, reachable = planar_3r_inverse_kinematics(
-            xy_m, config.end_effector_angle_rad, arm, elbow=elbow
-        )
-        if np.all(reachable):
-            for array in (t_s, xy_m, q_rad):
-                array.setflags(write=False)
-            return OperatorSession(
-                t_s=t_s,
-                xy_m=xy_m,
-                q_rad=q_rad,
-                joint_names=arm.joint_names,
-                shape=SYNTHETIC_SHAPE,
-                demo_index=int(config.seed),
-                mapping=mapping,
-                elbow=elbow,
-            )
-        if first_failure is None:
-            first_failure = int(np.argmin(reachable))
-    k = first_failure
-    raise ValueError(
-        f"the synthetic operator session is not reachable by the arm (joints "
-        f"{arm.joint_names!r}): with elbow +1 the first unreachable sample is k = {k} at "
-        f"t = {t_s[k]:.2f} s, xy_m = ({xy_m[k, 0]:.4f}, {xy_m[k, 1]:.4f}) m (outside the "
-        f"workspace or the joint limits), and elbow -1 fails too; move or shrink "
-        f"workspace_center_m = {config.workspace_center_m!r} / workspace_half_extents_m = "
-        f"{config.workspace_half_extents_m!r} ({config!r})"
+    return _operator_session_from_xy(
+        t_s,
+        xy_m,
+        config.end_effector_angle_rad,
+        arm,
+        shape=SYNTHETIC_SHAPE,
+        demo_index=int(config.seed),
+        mapping=mapping,
+        describe="the synthetic operator session",
+        advice=(
+            f"; move or shrink workspace_center_m = {config.workspace_center_m!r} / "
+            f"workspace_half_extents_m = {config.workspace_half_extents_m!r} ({config!r})"
+        ),
     )

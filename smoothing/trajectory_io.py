@@ -56,22 +56,11 @@ def read_joint_csv(path, *, expected_dt_s: float | None = None) -> JointTrajecto
             column, or a time step different from ``expected_dt_s``.
     """
     path = Path(path)
-    try:
-        with path.open(newline="") as handle:
-            rows = list(csv.reader(handle))
-    except OSError as error:
-        raise ValueError(f"{path}: cannot read ({error.strerror})") from None
-    # Keep each row's line number in the file (blank lines are skipped, not renumbered).
-    numbered = [(line, row) for line, row in enumerate(rows, start=1)
-                if row and any(cell.strip() for cell in row)]
-    if not numbered:
-        raise ValueError(f"{path}: the file is empty; expected a header 't,<joint names…>'")
-    header = [cell.strip() for cell in numbered[0][1]]
-    if header[0] != "t":
-        raise ValueError(
-            f"{path}: the first header column is {header[0]!r}; it must be 't' (seconds), "
-            "followed by one column per joint (radians)"
-        )
+    header, data_rows = read_csv_table(
+        path,
+        expected_header_hint="t,<joint names…>",
+        after_time_hint="one column per joint (radians)",
+    )
     names = header[1:]
     if not names:
         raise ValueError(f"{path}: the header names no joint columns after 't'")
@@ -81,26 +70,15 @@ def read_joint_csv(path, *, expected_dt_s: float | None = None) -> JointTrajecto
     duplicates = sorted({name for name in names if names.count(name) > 1})
     if duplicates:
         raise ValueError(f"{path}: duplicate joint column name(s) {duplicates}")
-    data = np.empty((len(numbered) - 1, len(header)))
-    for data_index, (row_index, row) in enumerate(numbered[1:]):
+    data = np.empty((len(data_rows), len(header)))
+    for data_index, (row_index, row) in enumerate(data_rows):
         if len(row) != len(header):
             raise ValueError(
                 f"{path}: line {row_index} has {len(row)} value(s); the header has {len(header)}"
             )
         for col, cell in enumerate(row):
-            column = header[col]
-            try:
-                value = float(cell)
-            except ValueError:
-                raise ValueError(
-                    f"{path}: line {row_index}, column {column!r}: {cell.strip()!r} is not a number"
-                ) from None
-            if not math.isfinite(value):
-                raise ValueError(
-                    f"{path}: line {row_index}, column {column!r}: value {cell.strip()!r} is not "
-                    "finite"
-                )
-            data[data_index, col] = value
+            data[data_index, col] = parse_csv_number(cell, path=path, line=row_index,
+                                                     column=header[col])
     if data.shape[0] < 2:
         raise ValueError(f"{path}: {data.shape[0]} data row(s); at least 2 are needed")
     t = data[:, 0]
@@ -115,6 +93,62 @@ def read_joint_csv(path, *, expected_dt_s: float | None = None) -> JointTrajecto
             file=sys.stderr,
         )
     return JointTrajectory(t_s=t, positions=positions, joint_names=tuple(names))
+
+
+def read_csv_table(path, *, expected_header_hint: str, after_time_hint: str):
+    """Reads a CSV file whose header starts with a time column ``t``.
+
+    Blank lines are skipped but not renumbered, so every row keeps its line number in the file
+    for error messages. Header cells are stripped of white space; data cells are not.
+
+    Args:
+        path: The file.
+        expected_header_hint: The header the reader expects, quoted in the empty-file message
+            (e.g. ``"t,<joint names…>"``).
+        after_time_hint: What must follow ``t`` in the header, ending the message for a wrong
+            first column (e.g. ``"one column per joint (radians)"``).
+
+    Returns:
+        ``(header, data_rows)``: the stripped header cells (a list whose first entry is ``"t"``)
+        and the data rows as a list of ``(line number, row cells)``.
+
+    Raises:
+        ValueError: If the file cannot be read, is empty (or blank), or its first header column
+            is not ``t``.
+    """
+    path = Path(path)
+    try:
+        with path.open(newline="") as handle:
+            rows = list(csv.reader(handle))
+    except OSError as error:
+        raise ValueError(f"{path}: cannot read ({error.strerror})") from None
+    # Keep each row's line number in the file (blank lines are skipped, not renumbered).
+    numbered = [(line, row) for line, row in enumerate(rows, start=1)
+                if row and any(cell.strip() for cell in row)]
+    if not numbered:
+        raise ValueError(f"{path}: the file is empty; expected a header '{expected_header_hint}'")
+    header = [cell.strip() for cell in numbered[0][1]]
+    if header[0] != "t":
+        raise ValueError(
+            f"{path}: the first header column is {header[0]!r}; it must be 't' (seconds), "
+            f"followed by {after_time_hint}"
+        )
+    return header, numbered[1:]
+
+
+def parse_csv_number(cell: str, *, path, line: int, column: str) -> float:
+    """Parses one CSV cell as a finite float; the error names the file, line, column and value."""
+    try:
+        value = float(cell)
+    except ValueError:
+        raise ValueError(
+            f"{path}: line {line}, column {column!r}: {cell.strip()!r} is not a number"
+        ) from None
+    if not math.isfinite(value):
+        raise ValueError(
+            f"{path}: line {line}, column {column!r}: value {cell.strip()!r} is not finite"
+        )
+    return value
 
 
 def check_uniform_time(t_s, *, source: str = "t", expected_dt_s: float | None = None) -> float:
