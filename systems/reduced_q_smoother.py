@@ -71,6 +71,27 @@ class ReducedQSmootherConfig:
             raise ValueError(
                 f"ReducedQSmootherConfig.lag = {self.lag!r} must be a non-negative integer"
             )
+        for name, allow_inf in (("sigma", False), ("r", False),
+                                ("max_acceleration_rad_per_s2", True),
+                                ("max_jerk_rad_per_s3", True)):
+            _check_positive_values(name, getattr(self, name), allow_inf=allow_inf)
+
+
+def _check_positive_values(name, value, *, allow_inf):
+    """A scalar must be positive here; per-joint sequences are checked with the joint names
+    when the smoother (or a Scenario) knows them."""
+    if np.ndim(value) != 0:
+        return
+    for item in (value,):
+        label = name
+        try:
+            number = float(item)
+        except (TypeError, ValueError):
+            raise ValueError(f"{label} = {item!r} must be a number") from None
+        if isinstance(item, bool) or np.isnan(number) or number <= 0.0 or (
+                np.isinf(number) and not allow_inf):
+            raise ValueError(f"{label} = {number!r} must be positive"
+                             + (" (inf = no limit)" if allow_inf else " and finite"))
 
 
 class ReducedQSmoother(LeafSystem):

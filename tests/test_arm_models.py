@@ -265,3 +265,21 @@ def test_add_arm_loads_an_edited_description_not_the_committed_file():
     tip = plant.CalcPointsPositions(context, plant.GetFrameByName("tool"), np.zeros(3),
                                     plant.world_frame())
     assert tip[0, 0] == pytest.approx(0.6 + 0.4 + 0.2)
+
+
+def test_lifted_planar_poses_are_reached_by_the_lifted_planar_joints():
+    from telesmooth.arms.air_bearing import planar_joints_to_space_arm, planar_pose_to_space_arm
+    from pydrake.math import RollPitchYaw, RotationMatrix
+    from telesmooth.arms.space_arm_ik import SpaceArmKinematics
+
+    kinematics = SpaceArmKinematics(SPACE_ARM_6DOF)
+    rng = np.random.default_rng(2)
+    for _ in range(10):
+        q = rng.uniform(-1.2, 1.2, 3)
+        xy = planar_forward_kinematics(q, AIR_BEARING_ARM.link_lengths_m)
+        pose = [xy[0], xy[1], float(np.sum(q))]
+        lifted = planar_pose_to_space_arm(pose)
+        X = kinematics.tool_transform(planar_joints_to_space_arm(q))
+        np.testing.assert_allclose(X.translation(), lifted[:3], atol=1e-12)
+        R = RotationMatrix(RollPitchYaw(lifted[3:])).matrix()
+        np.testing.assert_allclose(X.rotation().matrix(), R, atol=1e-12)

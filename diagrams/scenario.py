@@ -1,0 +1,278 @@
+"""The scenario: every setting of a teleoperation run, loadable from YAML.
+
+A :class:`Scenario` composes the config dataclass of each stage plus the run settings (arm,
+operator source, LCM URL, duration). Scenario files are mappings from scenario names to
+(partial) scenarios; :func:`load_scenario` picks one, applies text overrides and builds the
+dataclasses through their constructors, so every value is validated as in code and unknown
+keys are errors (see :mod:`telesmooth.diagrams.typed_yaml`).
+
+Built-in scenarios (``diagrams/scenarios.yaml``): ``Defaults`` (all defaults: the air-bearing
+arm replaying the LASA "Angle" demonstration 0, Online-CKS) and ``OneOfEverything`` (the
+6-DOF arm, synthetic operator, period mean, B2 reduced-Q with the FD trigger, clutch release,
+ZOH onboard interpolation, tracker noise).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import pathlib
+
+import numpy as np
+
+from telesmooth.arms.air_bearing import planar_joints_to_space_arm, planar_pose_to_space_arm
+from telesmooth.arms.description import AIR_BEARING_ARM_3DOF, SPACE_ARM_6DOF, ArmDescription
+from telesmooth.arms.planar import AIR_BEARING_ARM, planar_3r_inverse_kinematics
+from telesmooth.arms.workspace import AIR_BEARING_WORKSPACE, SPACE_ARM_WORKSPACE, Workspace
+from telesmooth.datasets.haptic_recording import (
+    SPATIAL_POSE_NAMES,
+    HapticRecording,
+    read_haptic_csv,
+    read_haptic_npz,
+)
+from telesmooth.datasets.lasa import WorkspaceMapping, lasa_operator_session
+from telesmooth.datasets.synthetic import SyntheticOperatorConfig, synthetic_operator_session
+from telesmooth.diagrams.channels import DEFAULT_LCM_URL
+from telesmooth.smoothing.validation import as_per_joint
+from telesmooth.diagrams.typed_yaml import config_from_data, load_yaml_text, merge_data
+from telesmooth.systems.collision_checker import CollisionCheckerConfig
+from telesmooth.systems.delay_fifo import DelayFifoConfig
+from telesmooth.systems.flexible_arm import FlexibleArmConfig
+from telesmooth.systems.inverse_kinematics import InverseKinematicsConfig
+from telesmooth.systems.joint_command_receiver import JointCommandReceiverConfig
+from telesmooth.systems.reduced_q_smoother import ReducedQSmootherConfig
+from telesmooth.systems.uplink import UplinkConfig
+
+__all__ = [
+    "ARMS",
+    "BUILTIN_SCENARIOS_FILE",
+    "HAPTIC_SOURCES",
+    "HapticScenario",
+    "Scenario",
+    "load_scenario",
+    "make_haptic_recording",
+]
+
+ARMS = {"air_bearing_arm": AIR_BEARING_ARM_3DOF, "space_arm": SPACE_ARM_6DOF}
+HAPTIC_SOURCES = ("lasa", "synthetic", "file", "lcm")
+BUILTIN_SCENARIOS_FILE = pathlib.Path(__file__).resolve().parent / "scenarios.yaml"
+
+
+@dataclasses.dataclass(frozen=True)
+class HapticScenario:
+    """Where the operator's commands come from.
+
+    Attributes:
+        source: ``"lasa"`` (a LASA demonstration), ``"synthetic"`` (the synthetic operator),
+            ``"file"`` (a CSV or NPZ recording), or ``"lcm"`` (a live device publishing on
+            TELEOP_HAPTIC_COMMAND; ground process only).
+        lasa_shape, lasa_demo: The LASA demonstration.
+        lasa_mapping: Its placement in the plane and in time.
+        synthetic: The synthetic operator's settings.
+        file: Path of the recording (``source = "file"``).
+        period_s: Haptic sample period, s.
+        live_initial_pose: First pose assumed for a live device before it sends anything;
+            planar (x_m, y_m, phi_rad) (lifted for the 6-DOF arm).
+        live_duration_s: How long a live session runs, s.
+
+    Planar sessions (LASA, synthetic, 3-axis files) drive the 6-DOF arm in its air-bearing
+    plane (:mod:`telesmooth.arms.air_bearing`).
+    """
+
+    source: str = "lasa"
+    lasa_shape: str = "Angle"
+    lasa_demo: int = 0
+    lasa_mapping: WorkspaceMapping = dataclasses.field(default_factory=WorkspaceMapping)
+    synthetic: SyntheticOperatorConfig = dataclasses.field(
+        default_factory=SyntheticOperatorConfig)
+    file: str | None = None
+    period_s: float = 0.01
+    live_initial_pose: tuple[float, float, float] = (0.7, 0.0, 0.0)
+    live_duration_s: float = 60.0
+
+    def __post_init__(self) -> None:
+        if self.source not in HAPTIC_SOURCES:
+            raise ValueError(
+                f"haptic.source = {self.source!r} must be one of {HAPTIC_SOURCES}")
+        if self.source == "file" and not self.file:
+            raise ValueError("haptic.file must name a CSV or NPZ recording when source = 'file'")
+
+
+@dataclasses.dataclass(frozen=True)
+class Scenario:
+    """Every setting of a run.
+
+    Attributes:
+        arm: ``"air_bearing_arm"`` (3 joints in a plane) or ``"space_arm"`` (6-DOF).
+        haptic: The operator source.
+        inverse_kinematics, collision_checker, fifo, smoother, uplink: the ground stages.
+        workspace: Obstacles and bounding box; None = the arm's default scenario.
+        period_mean: If true the FIFO samples the mean of each period instead of the latest
+            IK target (the smoother's r is then divided by the samples per period).
+        onboard: The flexible-joint plant (its ``arm`` is set from ``arm``).
+        command_receiver: The onboard LCM command receiver (two-process runs).
+        lcm_url: LCM URL of the ground/onboard processes.
+        publish_offset_s: Delay after each uplink tick at which the packet is published, s.
+        settle_s: Extra simulated time after the operator's recording ends, s.
+        simulation_duration_s: Simulated time; None = recording length + ``settle_s``.
+        initial_position_rad: Start pose of the arm; None = the IK of the first pose.
+    """
+
+    arm: str = "air_bearing_arm"
+    haptic: HapticScenario = dataclasses.field(default_factory=HapticScenario)
+    inverse_kinematics: InverseKinematicsConfig = dataclasses.field(
+        default_factory=InverseKinematicsConfig)
+    collision_checker: CollisionCheckerConfig = dataclasses.field(
+        default_factory=CollisionCheckerConfig)
+    workspace: Workspace | None = None
+    period_mean: bool = False
+    fifo: DelayFifoConfig = dataclasses.field(default_factory=DelayFifoConfig)
+    smoother: ReducedQSmootherConfig = dataclasses.field(default_factory=ReducedQSmootherConfig)
+    uplink: UplinkConfig = dataclasses.field(default_factory=UplinkConfig)
+    onboard: FlexibleArmConfig = dataclasses.field(default_factory=FlexibleArmConfig)
+    command_receiver: JointCommandReceiverConfig = dataclasses.field(
+        default_factory=JointCommandReceiverConfig)
+    lcm_url: str = DEFAULT_LCM_URL
+    publish_offset_s: float = 0.001
+    settle_s: float = 3.0
+    simulation_duration_s: float | None = None
+    initial_position_rad: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if self.arm not in ARMS:
+            raise ValueError(f"arm = {self.arm!r} must be one of {sorted(ARMS)}")
+        if self.onboard.arm != self.arm:
+            object.__setattr__(self, "onboard", dataclasses.replace(self.onboard, arm=self.arm))
+        periods = {"fifo.period_s": self.fifo.period_s,
+                   "smoother.period_s": self.smoother.period_s,
+                   "uplink.period_s": self.uplink.period_s}
+        if len(set(periods.values())) != 1:
+            raise ValueError(f"the 4 Hz stages must share one period; got {periods}")
+        if self.smoother.lag != self.fifo.lag:
+            raise ValueError(
+                f"smoother.lag = {self.smoother.lag} must equal the FIFO length "
+                f"fifo.delay_s/fifo.period_s = {self.fifo.lag}")
+        for name in ("settle_s", "publish_offset_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name} = {value!r} must be non-negative and finite")
+        if not self.publish_offset_s < self.uplink.period_s:
+            raise ValueError(
+                f"publish_offset_s = {self.publish_offset_s!r} must be below uplink.period_s")
+        if self.simulation_duration_s is not None and not (
+                math.isfinite(self.simulation_duration_s) and self.simulation_duration_s > 0):
+            raise ValueError(
+                f"simulation_duration_s = {self.simulation_duration_s!r} must be positive")
+        names = self.arm_description.joint_names
+        for field in ("sigma", "max_acceleration_rad_per_s2", "max_jerk_rad_per_s3"):
+            try:
+                as_per_joint(field, getattr(self.smoother, field), len(names), names,
+                             allow_inf=field != "sigma")
+            except ValueError as error:
+                raise ValueError(f"smoother.{error}") from None
+        if self.initial_position_rad is not None:
+            q0 = np.asarray(self.initial_position_rad, dtype=float)
+            description = self.arm_description
+            if q0.shape != (description.num_joints,):
+                raise ValueError(
+                    f"initial_position_rad = {self.initial_position_rad!r} must have "
+                    f"{description.num_joints} values ({description.joint_names})")
+            for name, value, lo, hi in zip(description.joint_names, q0,
+                                           description.joint_lower_rad,
+                                           description.joint_upper_rad):
+                if not (math.isfinite(value) and lo <= value <= hi):
+                    raise ValueError(
+                        f"initial_position_rad[{name!r}] = {float(value)!r} must be within "
+                        f"[{lo:.4f}, {hi:.4f}] rad")
+
+    @property
+    def arm_description(self) -> ArmDescription:
+        return ARMS[self.arm]
+
+    @property
+    def workspace_or_default(self) -> Workspace:
+        if self.workspace is not None:
+            return self.workspace
+        return AIR_BEARING_WORKSPACE if self.arm == "air_bearing_arm" else SPACE_ARM_WORKSPACE
+
+
+def make_haptic_recording(scenario: Scenario) -> HapticRecording | None:
+    """The operator recording of ``scenario`` in the arm's pose convention (None for 'lcm').
+
+    Planar recordings are lifted into the 6-DOF arm's air-bearing plane when the arm is
+    ``space_arm``.
+    """
+    haptic = scenario.haptic
+    if haptic.source == "lcm":
+        return None
+    if haptic.source == "lasa":
+        mapping = dataclasses.replace(haptic.lasa_mapping,
+                                      haptic_rate_hz=1.0 / haptic.period_s)
+        recording = HapticRecording.from_operator_session(
+            lasa_operator_session(haptic.lasa_shape, haptic.lasa_demo, mapping=mapping))
+    elif haptic.source == "synthetic":
+        synthetic = dataclasses.replace(haptic.synthetic, haptic_rate_hz=1.0 / haptic.period_s)
+        recording = HapticRecording.from_operator_session(synthetic_operator_session(synthetic))
+    else:
+        path = pathlib.Path(haptic.file)
+        reader = read_haptic_npz if path.suffix.lower() == ".npz" else read_haptic_csv
+        recording = reader(path)
+    if scenario.arm == "space_arm" and recording.num_pose == 3:
+        recording = HapticRecording(
+            t_s=recording.t_s, pose=planar_pose_to_space_arm(recording.pose),
+            enable=recording.enable, pose_names=SPATIAL_POSE_NAMES)
+    return recording
+
+
+def initial_position(scenario: Scenario, recording: HapticRecording | None) -> np.ndarray:
+    """The arm's start pose: the scenario's, else the IK of the first commanded pose."""
+    if scenario.initial_position_rad is not None:
+        return np.asarray(scenario.initial_position_rad, dtype=float)
+    if recording is None:
+        planar_pose = np.asarray(scenario.haptic.live_initial_pose, dtype=float)
+    elif recording.num_pose == 3:
+        planar_pose = recording.pose[0]
+    else:
+        # A 6-DOF recording: take the air-bearing plane's planar pose if it lies in it.
+        from telesmooth.arms.air_bearing import SHOULDER_IN_BASE_M
+        pose = recording.pose[0]
+        planar_pose = np.array([pose[0] - SHOULDER_IN_BASE_M[0],
+                                pose[2] - SHOULDER_IN_BASE_M[2], -pose[4]])
+    q, reachable = planar_3r_inverse_kinematics(
+        planar_pose[:2], planar_pose[2], AIR_BEARING_ARM,
+        elbow=scenario.inverse_kinematics.elbow)
+    if not bool(np.all(reachable)):
+        raise ValueError(
+            f"the first commanded pose {planar_pose.tolist()!r} is not reachable; set "
+            "initial_position_rad in the scenario")
+    q = np.asarray(q, dtype=float)
+    return planar_joints_to_space_arm(q) if scenario.arm == "space_arm" else q
+
+
+def load_scenario(*, filename=None, scenario_name: str | None = None,
+                  scenario_text: str | None = None) -> Scenario:
+    """Loads a scenario: file (a mapping of names to scenarios) → named entry → text overrides.
+
+    Args:
+        filename: YAML file; default the built-in ``diagrams/scenarios.yaml``.
+        scenario_name: Entry to use; default ``"Defaults"``.
+        scenario_text: YAML mapping merged on top (e.g. ``"{arm: space_arm}"``).
+
+    Raises:
+        ValueError: unknown scenario name (listing the known ones), unknown keys, invalid
+            values (each naming the key path and value).
+    """
+    path = pathlib.Path(filename) if filename is not None else BUILTIN_SCENARIOS_FILE
+    try:
+        text = path.read_text()
+    except OSError as error:
+        raise ValueError(f"scenario file {path}: cannot read ({error.strerror})") from None
+    scenarios = load_yaml_text(text)
+    name = scenario_name or "Defaults"
+    if name not in scenarios:
+        raise ValueError(
+            f"scenario_name = {name!r} is not in {path}; it has {sorted(scenarios)}")
+    data = scenarios[name] or {}
+    if scenario_text:
+        data = merge_data(data, load_yaml_text(scenario_text))
+    return config_from_data(Scenario, data, path="scenario")

@@ -1,0 +1,342 @@
+"""Diagram builders: the ground station, the onboard robot, and the whole chain in one process.
+
+Data flow (the paper's Figure 2, SPEC §5.1), ground side at the haptic rate then at 4 Hz:
+
+    haptic source ─pose, clutch─▶ inverse kinematics ─q_target─┬─▶ collision checker
+                                                                │        (pre-simulator)
+                                              [period mean] ◀──┘             │ collision
+                                                    │                         ▼
+                                                    └──────────────▶ delay FIFO (L = 3)
+                                                                  q_newest │ reset
+                                                                           ▼
+                                                          reduced-Q smoother (BMFLS)
+                                                                           │ x̂_{k−L|k}
+                                                                           ▼
+                                                                  4 Hz uplink (ZOH) ─┐
+                                          q_sent (hold on collision) ◀───────────────┘
+    onboard: (LCM) ─▶ command receiver ─▶ interpolator ─▶ flexible-joint plant ─▶ tracker
+
+Builders never simulate. Each returns a small frozen dataclass of handles.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from pydrake.lcm import DrakeLcm
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
+from pydrake.systems.primitives import LogVectorOutput
+
+from telesmooth.datasets.haptic_recording import HapticRecording
+from telesmooth.diagrams.channels import (
+    ONBOARD_JOINT_STATUS,
+    TELEOP_COLLISION_EVENT,
+    TELEOP_HAPTIC_COMMAND,
+    TELEOP_JOINT_COMMAND,
+)
+from telesmooth.diagrams.scenario import Scenario, initial_position, make_haptic_recording
+from telesmooth.lcm_types import (
+    lcmt_onboard_joint_status,
+    lcmt_teleop_collision_event,
+    lcmt_teleop_haptic_command,
+    lcmt_teleop_joint_command,
+)
+from telesmooth.systems.collision_checker import CollisionChecker
+from telesmooth.systems.collision_event_sender import CollisionEventSender
+from telesmooth.systems.delay_fifo import DelayFifo
+from telesmooth.systems.flexible_arm import FlexibleJointArm
+from telesmooth.systems.haptic_command_receiver import HapticCommandReceiver
+from telesmooth.systems.haptic_source import HapticSource, HapticSourceConfig
+from telesmooth.systems.inverse_kinematics import InverseKinematicsSystem
+from telesmooth.systems.joint_command_receiver import JointCommandReceiver
+from telesmooth.systems.joint_command_sender import JointCommandSender
+from telesmooth.systems.joint_status_sender import JointStatusSender
+from telesmooth.systems.period_mean import PeriodMean, PeriodMeanConfig
+from telesmooth.systems.reduced_q_smoother import ReducedQSmoother
+from telesmooth.systems.uplink import Uplink
+
+__all__ = [
+    "GroundHandles",
+    "MakeGroundDiagram",
+    "MakeOnboardDiagram",
+    "MakeTeleoperationDiagram",
+    "OnboardHandles",
+    "TeleoperationHandles",
+    "AddGroundStation",
+    "AddOnboardRobot",
+]
+
+
+@dataclasses.dataclass(frozen=True)
+class GroundHandles:
+    """The ground-station systems of one diagram."""
+
+    haptic: object
+    inverse_kinematics: InverseKinematicsSystem
+    collision_checker: CollisionChecker
+    period_mean: PeriodMean | None
+    fifo: DelayFifo
+    smoother: ReducedQSmoother
+    uplink: Uplink
+    recording: HapticRecording | None
+    initial_position_rad: np.ndarray
+    joint_names: tuple[str, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class OnboardHandles:
+    """The onboard systems of one diagram."""
+
+    arm: FlexibleJointArm
+    receiver: JointCommandReceiver | None
+
+
+@dataclasses.dataclass(frozen=True)
+class TeleoperationHandles:
+    """A built diagram with its stages and loggers (name → VectorLogSink)."""
+
+    diagram: object
+    ground: GroundHandles | None
+    onboard: OnboardHandles | None
+    logs: dict
+    lcm: DrakeLcm | None = None
+    scenario: Scenario | None = None
+
+
+def _smoother_config(scenario: Scenario):
+    config = scenario.smoother
+    if scenario.period_mean:
+        # Averaging M samples of white hand noise divides its variance by M (SPEC §5.1).
+        samples = PeriodMeanConfig(sample_period_s=scenario.haptic.period_s,
+                                   window_s=scenario.fifo.period_s).num_samples
+        config = dataclasses.replace(config, r=config.r / samples)
+    return config
+
+
+def AddGroundStation(builder: DiagramBuilder, scenario: Scenario, *,
+                     lcm: DrakeLcm | None = None) -> GroundHandles:
+    """Adds the ground station (haptic source … uplink) to ``builder``.
+
+    The haptic source is the scenario's recording, or an LCM subscription to
+    TELEOP_HAPTIC_COMMAND when ``scenario.haptic.source == "lcm"`` (needs ``lcm``).
+    """
+    arm = scenario.arm_description
+    recording = make_haptic_recording(scenario)
+    q0 = initial_position(scenario, recording)
+    n = arm.num_joints
+
+    # Stage 1: the operator's hand (recorded, synthetic, or a live device over LCM).
+    if recording is not None:
+        haptic = builder.AddNamedSystem("haptic_source", HapticSource(
+            recording, HapticSourceConfig(period_s=scenario.haptic.period_s)))
+    else:
+        if lcm is None:
+            raise ValueError("haptic.source = 'lcm' needs an LCM instance (ground process)")
+        subscriber = builder.AddNamedSystem("haptic_subscriber", LcmSubscriberSystem.Make(
+            TELEOP_HAPTIC_COMMAND, lcmt_teleop_haptic_command, lcm))
+        live_pose = np.asarray(scenario.haptic.live_initial_pose, dtype=float)
+        if scenario.arm == "space_arm":
+            from telesmooth.arms.air_bearing import planar_pose_to_space_arm
+            live_pose = planar_pose_to_space_arm(live_pose)
+        haptic = builder.AddNamedSystem("haptic_receiver", HapticCommandReceiver(
+            initial_pose=live_pose))
+        builder.Connect(subscriber.get_output_port(), haptic.get_lcm_message_input_port())
+
+    # Stage 2: inverse kinematics (the task plan manager), 100 Hz.
+    ik = builder.AddNamedSystem("inverse_kinematics", InverseKinematicsSystem(
+        scenario.inverse_kinematics, arm=arm, initial_position_rad=q0))
+    builder.Connect(haptic.get_pose_desired_output_port(), ik.get_input_port(0))
+    builder.Connect(haptic.get_enable_output_port(), ik.get_input_port(1))
+
+    # Stage 3: the pre-simulator's collision check on the newest (undelayed) target.
+    checker = builder.AddNamedSystem("collision_checker", CollisionChecker(
+        scenario.collision_checker, arm=arm, workspace=scenario.workspace_or_default))
+    builder.Connect(ik.get_output_port(0), checker.get_input_port(0))
+
+    # Stage 4: the 0.75 s FIFO, sampling the latest target or the period mean.
+    fifo = builder.AddNamedSystem("delay_fifo", DelayFifo(
+        scenario.fifo, num_joints=n, initial_position_rad=q0))
+    period_mean = None
+    if scenario.period_mean:
+        period_mean = builder.AddNamedSystem("period_mean", PeriodMean(
+            PeriodMeanConfig(sample_period_s=scenario.haptic.period_s,
+                             window_s=scenario.fifo.period_s),
+            num_joints=n, initial_position_rad=q0))
+        builder.Connect(ik.get_output_port(0), period_mean.get_q_target_input_port())
+        builder.Connect(period_mean.get_q_mean_output_port(), fifo.get_q_target_input_port())
+    else:
+        builder.Connect(ik.get_output_port(0), fifo.get_q_target_input_port())
+    builder.Connect(checker.GetOutputPort("collision_detected"),
+                    fifo.get_collision_detected_input_port())
+    builder.Connect(haptic.get_enable_output_port(), fifo.get_enable_input_port())
+
+    # Stage 5: the reduced-Q fixed-lag smoother on the FIFO's window.
+    smoother = builder.AddNamedSystem("smoother", ReducedQSmoother(
+        _smoother_config(scenario), joint_names=arm.joint_names, initial_position_rad=q0))
+    builder.Connect(fifo.get_q_newest_output_port(), smoother.get_q_sample_input_port())
+    builder.Connect(fifo.get_reset_output_port(), smoother.get_reset_input_port())
+
+    # Stage 6: the 4 Hz uplink; its held command is what the FIFO refills with on collision.
+    uplink = builder.AddNamedSystem("uplink", Uplink(
+        scenario.uplink, num_joints=n, initial_position_rad=q0))
+    builder.Connect(smoother.get_q_smoothed_output_port(), uplink.get_q_smoothed_input_port())
+    builder.Connect(smoother.get_state_smoothed_output_port(),
+                    uplink.get_state_smoothed_input_port())
+    builder.Connect(uplink.get_q_sent_output_port(), fifo.get_q_sent_input_port())
+
+    return GroundHandles(
+        haptic=haptic, inverse_kinematics=ik, collision_checker=checker,
+        period_mean=period_mean, fifo=fifo, smoother=smoother, uplink=uplink,
+        recording=recording, initial_position_rad=q0, joint_names=arm.joint_names)
+
+
+def AddOnboardRobot(builder: DiagramBuilder, scenario: Scenario, *,
+                    initial_position_rad) -> FlexibleJointArm:
+    """Adds the flexible-joint arm (interpolator + plant + tracker), starting at rest."""
+    config = dataclasses.replace(
+        scenario.onboard, arm=scenario.arm,
+        initial_position_rad=tuple(float(v) for v in initial_position_rad))
+    return builder.AddNamedSystem("robot", FlexibleJointArm(config))
+
+
+def _log_ground(builder, ground: GroundHandles, scenario: Scenario) -> dict:
+    haptic_period = scenario.haptic.period_s
+    tick = scenario.uplink.period_s
+    ik, checker, uplink = ground.inverse_kinematics, ground.collision_checker, ground.uplink
+    return {
+        "q_target": LogVectorOutput(ik.get_output_port(0), builder, haptic_period),
+        "ik_failed": LogVectorOutput(ik.GetOutputPort("ik_failed"), builder, haptic_period),
+        "collision_detected": LogVectorOutput(checker.GetOutputPort("collision_detected"),
+                                              builder, haptic_period),
+        "min_distance": LogVectorOutput(checker.GetOutputPort("min_distance"), builder,
+                                        haptic_period),
+        "sequence_number": LogVectorOutput(uplink.get_sequence_number_output_port(), builder,
+                                           haptic_period),
+        "send_time": LogVectorOutput(uplink.get_send_time_output_port(), builder,
+                                     haptic_period),
+        "state_sent": LogVectorOutput(uplink.get_state_sent_output_port(), builder,
+                                      haptic_period),
+        "q_delayed": LogVectorOutput(ground.fifo.get_q_delayed_output_port(), builder, tick),
+        "holding": LogVectorOutput(ground.fifo.get_holding_output_port(), builder, tick),
+        "sigma": LogVectorOutput(ground.smoother.get_sigma_output_port(), builder, tick),
+    }
+
+
+def _log_onboard(builder, robot: FlexibleJointArm, period_s: float) -> dict:
+    return {
+        "q_link": LogVectorOutput(robot.GetOutputPort("q_link"), builder, period_s),
+        "q_motor": LogVectorOutput(robot.GetOutputPort("q_motor"), builder, period_s),
+        "position_measured": LogVectorOutput(robot.GetOutputPort("position_measured"),
+                                             builder, period_s),
+        "command_rejected": LogVectorOutput(robot.GetOutputPort("command_rejected"), builder,
+                                            period_s),
+    }
+
+
+def MakeTeleoperationDiagram(scenario: Scenario) -> TeleoperationHandles:
+    """The whole chain in one process: the uplink's held command drives the plant directly."""
+    builder = DiagramBuilder()
+    ground = AddGroundStation(builder, scenario)
+    robot = AddOnboardRobot(builder, scenario, initial_position_rad=ground.initial_position_rad)
+    builder.Connect(ground.uplink.get_q_sent_output_port(), robot.GetInputPort("q_commanded"))
+    logs = _log_ground(builder, ground, scenario)
+    logs.update(_log_onboard(builder, robot, scenario.onboard.tracker.period_s))
+    diagram = builder.Build()
+    diagram.set_name("teleoperation")
+    return TeleoperationHandles(diagram=diagram, ground=ground,
+                                onboard=OnboardHandles(arm=robot, receiver=None), logs=logs,
+                                scenario=scenario)
+
+
+def MakeGroundDiagram(scenario: Scenario, *, lcm: DrakeLcm) -> TeleoperationHandles:
+    """The ground process: ground station → TELEOP_JOINT_COMMAND (+ collision events)."""
+    builder = DiagramBuilder()
+    builder.AddNamedSystem("lcm", LcmInterfaceSystem(lcm))
+    ground = AddGroundStation(builder, scenario, lcm=lcm)
+    period = scenario.uplink.period_s
+    # The packet formed at t_k is published at t_k + publish_offset_s (Drake publishes the
+    # pre-update state at an event time, so an offset of 0 would send packet k−1).
+    sender = builder.AddNamedSystem("joint_command_sender", JointCommandSender(
+        joint_names=ground.joint_names, delay_s=scenario.fifo.delay_s))
+    builder.Connect(ground.uplink.get_q_sent_output_port(), sender.get_q_sent_input_port())
+    builder.Connect(ground.uplink.get_state_sent_output_port(),
+                    sender.get_state_sent_input_port())
+    builder.Connect(ground.uplink.get_sequence_number_output_port(),
+                    sender.get_sequence_number_input_port())
+    builder.Connect(ground.uplink.get_send_time_output_port(), sender.get_send_time_input_port())
+    command_publisher = builder.AddNamedSystem("joint_command_publisher",
+        LcmPublisherSystem.Make(TELEOP_JOINT_COMMAND, lcmt_teleop_joint_command, lcm,
+                                publish_period=period,
+                                publish_offset=scenario.publish_offset_s))
+    builder.Connect(sender.get_lcm_message_output_port(), command_publisher.get_input_port())
+    events = builder.AddNamedSystem("collision_event_sender", CollisionEventSender())
+    builder.Connect(ground.collision_checker.GetOutputPort("collision_detected"),
+                    events.get_collision_detected_input_port())
+    builder.Connect(ground.fifo.get_holding_output_port(), events.get_holding_input_port())
+    builder.Connect(ground.collision_checker.GetOutputPort("min_distance"),
+                    events.get_min_distance_input_port())
+    builder.Connect(ground.uplink.get_sequence_number_output_port(),
+                    events.get_sequence_number_input_port())
+    event_publisher = builder.AddNamedSystem("collision_event_publisher",
+        LcmPublisherSystem.Make(TELEOP_COLLISION_EVENT, lcmt_teleop_collision_event, lcm,
+                                publish_period=period,
+                                publish_offset=scenario.publish_offset_s))
+    builder.Connect(events.get_lcm_message_output_port(), event_publisher.get_input_port())
+    logs = _log_ground(builder, ground, scenario)
+    diagram = builder.Build()
+    diagram.set_name("ground")
+    return TeleoperationHandles(diagram=diagram, ground=ground, onboard=None, logs=logs,
+                                lcm=lcm, scenario=scenario)
+
+
+def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm,
+                       initial_position_rad=None) -> TeleoperationHandles:
+    """The onboard process: TELEOP_JOINT_COMMAND → validated hold → plant → telemetry.
+
+    The robot holds its last accepted command when packets stop or are rejected.
+    ``initial_position_rad`` defaults to the scenario's (or the IK of its first pose).
+    """
+    arm = scenario.arm_description
+    if initial_position_rad is None:
+        initial_position_rad = initial_position(scenario, make_haptic_recording(scenario))
+    builder = DiagramBuilder()
+    builder.AddNamedSystem("lcm", LcmInterfaceSystem(lcm))
+    subscriber = builder.AddNamedSystem("joint_command_subscriber", LcmSubscriberSystem.Make(
+        TELEOP_JOINT_COMMAND, lcmt_teleop_joint_command, lcm))
+    receiver = builder.AddNamedSystem("joint_command_receiver", JointCommandReceiver(
+        scenario.command_receiver, joint_names=arm.joint_names,
+        lower_rad=arm.joint_lower_rad, upper_rad=arm.joint_upper_rad,
+        initial_position_rad=initial_position_rad))
+    builder.Connect(subscriber.get_output_port(), receiver.get_lcm_message_input_port())
+    robot = AddOnboardRobot(builder, scenario, initial_position_rad=initial_position_rad)
+    builder.Connect(receiver.get_q_commanded_output_port(), robot.GetInputPort("q_commanded"))
+    tracker_period = scenario.onboard.tracker.period_s
+    status = builder.AddNamedSystem("joint_status_sender", JointStatusSender(
+        num_joints=arm.num_joints, period_s=tracker_period))
+    builder.Connect(robot.GetOutputPort("q_link"), status.get_q_link_input_port())
+    builder.Connect(robot.GetOutputPort("q_motor"), status.get_q_motor_input_port())
+    builder.Connect(robot.GetOutputPort("position_measured"),
+                    status.get_position_measured_input_port())
+    builder.Connect(receiver.get_last_command_seq_output_port(),
+                    status.get_last_command_seq_input_port())
+    builder.Connect(receiver.get_command_rejected_output_port(),
+                    status.get_command_rejected_input_port())
+    builder.Connect(receiver.get_command_timeout_output_port(),
+                    status.get_command_timeout_input_port())
+    status_publisher = builder.AddNamedSystem("joint_status_publisher",
+        LcmPublisherSystem.Make(ONBOARD_JOINT_STATUS, lcmt_onboard_joint_status, lcm,
+                                publish_period=tracker_period,
+                                publish_offset=scenario.publish_offset_s))
+    builder.Connect(status.get_lcm_message_output_port(), status_publisher.get_input_port())
+    logs = _log_onboard(builder, robot, tracker_period)
+    logs["q_commanded"] = LogVectorOutput(receiver.get_q_commanded_output_port(), builder,
+                                          tracker_period)
+    logs["last_command_seq"] = LogVectorOutput(receiver.get_last_command_seq_output_port(),
+                                               builder, tracker_period)
+    diagram = builder.Build()
+    diagram.set_name("onboard")
+    return TeleoperationHandles(diagram=diagram, ground=None,
+                                onboard=OnboardHandles(arm=robot, receiver=receiver),
+                                logs=logs, lcm=lcm, scenario=scenario)

@@ -1,0 +1,146 @@
+"""Diagrams and scenarios: built-in scenarios run; latency end to end; LCM split == in-process."""
+
+import numpy as np
+import pytest
+from pydrake.lcm import DrakeLcm
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+
+from telesmooth.datasets.haptic_recording import HapticRecording, write_haptic_csv
+from telesmooth.diagrams.scenario import Scenario, load_scenario
+from telesmooth.diagrams.teleoperation import (
+    MakeGroundDiagram,
+    MakeOnboardDiagram,
+    MakeTeleoperationDiagram,
+)
+
+TICK = 0.25
+LAG = 3
+
+
+def packets(handles, context):
+    """Per uplink packet: (seq, send_time, state_sent) from the 100 Hz logs, deduplicated."""
+    seq = handles.logs["sequence_number"].FindLog(context).data()[0]
+    times = handles.logs["send_time"].FindLog(context).data()[0]
+    states = handles.logs["state_sent"].FindLog(context).data().T
+    _, first = np.unique(seq, return_index=True)
+    keep = [i for i in first if seq[i] >= 0]
+    return seq[keep].astype(int), times[keep], states[keep]
+
+
+@pytest.mark.parametrize("name,duration", [("Defaults", 4.0), ("OneOfEverything", None)])
+def test_builtin_scenarios_run(name, duration):
+    scenario = load_scenario(scenario_name=name)
+    handles = MakeTeleoperationDiagram(scenario)
+    end = duration or handles.ground.recording.t_s[-1] + scenario.settle_s
+    simulator = Simulator(handles.diagram)
+    simulator.AdvanceTo(end)
+    context = simulator.get_context()
+    assert context.get_time() == pytest.approx(end)
+    seq, times, states = packets(handles, context)
+    assert list(seq) == list(range(len(seq))) and len(seq) >= int(end / TICK) - 1
+    np.testing.assert_allclose(times, TICK * seq, atol=1e-12)
+    for log in handles.logs.values():
+        assert np.all(np.isfinite(log.FindLog(context).data()))
+    q_link = handles.logs["q_link"].FindLog(context).data()
+    n = handles.ground.initial_position_rad.size
+    # The robot follows the commands: link angles end near the last sent positions.
+    assert np.abs(q_link[:, -1] - states[-1, :n]).max() < 0.05
+
+
+def _step_recording(tmp_path):
+    t = np.arange(0, 6.0, 0.01)
+    pose = np.tile([0.7, 0.0, 0.0], (t.size, 1))
+    pose[t >= 2.0, 0] = 0.72          # a 2 cm step of the hand at t = 2 s
+    path = tmp_path / "step.csv"
+    write_haptic_csv(path, HapticRecording(t_s=t, pose=pose, enable=np.ones(t.size, bool),
+                                           pose_names=("x_m", "y_m", "phi_rad")))
+    return path
+
+
+def test_pass_through_command_leaves_exactly_three_ticks_after_the_ik_target(tmp_path):
+    path = _step_recording(tmp_path)
+    scenario = load_scenario(scenario_text=(
+        f"{{haptic: {{source: file, file: '{path}'}}, smoother: {{method: pass-through}}, "
+        "settle_s: 0.5}"))
+    handles = MakeTeleoperationDiagram(scenario)
+    simulator = Simulator(handles.diagram)
+    simulator.AdvanceTo(6.0)
+    context = simulator.get_context()
+    seq, _, states = packets(handles, context)
+    q_target = handles.logs["q_target"].FindLog(context)
+    target_times, targets = q_target.sample_times(), q_target.data().T
+    for k, state in zip(seq, states):
+        if k < LAG:
+            continue
+        # The FIFO took the IK target as seen at t_{k−3} (the 100 Hz logger sees the same
+        # pre-update value at that instant).
+        row = int(np.argmin(np.abs(target_times - (k - LAG) * TICK)))
+        np.testing.assert_array_equal(state[:3], targets[row], err_msg=f"packet {k}")
+    moved = seq[np.argmax(np.abs(states[:, 0] - states[0, 0]) > 1e-6)]
+    first_target_move = np.argmax(np.abs(targets[:, 0] - targets[0, 0]) > 1e-6)
+    # The hand moved at 2.00 s; the IK target changes 1 sample later (2.01 s); the first
+    # 4 Hz tick that samples it is 2.25 s (k = 9) and the robot gets it at k = 12 (3.00 s).
+    assert target_times[first_target_move] == pytest.approx(2.01)
+    assert moved == 12
+
+
+def test_lcm_split_sends_the_same_commands_as_the_single_process(tmp_path):
+    scenario = load_scenario(scenario_text="{settle_s: 0.0}")
+    duration = 6.0
+    single = MakeTeleoperationDiagram(scenario)
+    simulator = Simulator(single.diagram)
+    simulator.AdvanceTo(duration)
+    seq, _, states = packets(single, simulator.get_context())
+
+    lcm = DrakeLcm("memq://")
+    ground = MakeGroundDiagram(scenario, lcm=lcm)
+    onboard = MakeOnboardDiagram(scenario, lcm=lcm)
+    builder = DiagramBuilder()
+    builder.AddSystem(ground.diagram)
+    builder.AddSystem(onboard.diagram)
+    split = Simulator(builder.Build())
+    split.AdvanceTo(duration)
+    context = split.get_context()
+    received_seq = onboard.logs["last_command_seq"].FindLog(context).data()[0]
+    commanded = onboard.logs["q_commanded"].FindLog(context).data().T
+    n = 3
+    checked = 0
+    for k, state in zip(seq, states):
+        rows = np.flatnonzero(received_seq == k)
+        if rows.size == 0:
+            continue
+        np.testing.assert_array_equal(commanded[rows[0]], state[:n], err_msg=f"packet {k}")
+        checked += 1
+    assert checked >= len(seq) - 2
+    # The onboard side got packet k a few ms after t_k: never before, at most one poll late.
+    times = onboard.logs["last_command_seq"].FindLog(context).sample_times()
+    for k in (4, 10, 20):
+        first = times[np.argmax(received_seq >= k)]
+        assert k * TICK < first <= k * TICK + 0.02 + 1e-9
+
+
+@pytest.mark.parametrize("text,match", [
+    ("{arm: scara}", r"arm = 'scara'"),
+    ("{fifo: {delay_s: 0.8}}", r"delay_s = 0.8 is not a whole number"),
+    ("{smoother: {sigma: -1.0}}", r"scenario.smoother: .*sigma = -1.0 must be positive"),
+    ("{smoother: {max_jerk_rad_per_s3: [0.1, 0.0, 0.1]}}",
+     r"smoother.max_jerk_rad_per_s3\[1\] = 0.0 for joint 1 \('elbow'\)"),
+    ("{smoother: {colour: red}}", r"scenario.smoother: unknown key\(s\) \['colour'\]"),
+    ("{haptic: {source: file}}", r"haptic.file must name"),
+    ("{uplink: {period_s: 0.5}}", r"share one period"),
+    ("{initial_position_rad: [0.0, 0.0, 9.0]}", r"initial_position_rad\['wrist'\] = 9.0"),
+    ("{settle_s: yes}", r"scenario.settle_s = True must be a number"),
+])
+def test_scenario_errors_name_the_key_and_value(text, match):
+    with pytest.raises(ValueError, match=match):
+        load_scenario(scenario_text=text)
+
+
+def test_unknown_scenario_name_lists_the_known_ones():
+    with pytest.raises(ValueError, match=r"'Nope' is not in .*\['Defaults', 'OneOfEverything'\]"):
+        load_scenario(scenario_name="Nope")
+
+
+def test_defaults_scenario_is_the_dataclass_default():
+    assert load_scenario() == Scenario()
