@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 OUT    ?= out/demo
 
-.PHONY: demo test bench venv clean
+.PHONY: demo methods test bench venv clean
 
 venv: $(VENV)/.installed
 
@@ -15,8 +15,13 @@ $(VENV)/.installed: pyproject.toml
 	$(BIN)/pip install --quiet -e '.[test]'
 	touch $@
 
+# The whole chain headless on the default scenario (a real human demonstration).
 demo: venv
-	$(BIN)/telesmooth demo --out $(OUT)
+	$(BIN)/telesmooth simulate --out $(OUT)
+
+# Every smoothing method on the same demonstration, without the plant (core only).
+methods: venv
+	$(BIN)/telesmooth demo --out out/methods
 
 test: venv
 	$(BIN)/python -m pytest -q

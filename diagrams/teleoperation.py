@@ -235,12 +235,19 @@ def _log_onboard(builder, robot: FlexibleJointArm, period_s: float) -> dict:
     }
 
 
-def MakeTeleoperationDiagram(scenario: Scenario) -> TeleoperationHandles:
-    """The whole chain in one process: the uplink's held command drives the plant directly."""
+def MakeTeleoperationDiagram(scenario: Scenario, *, meshcat=None) -> TeleoperationHandles:
+    """The whole chain in one process: the uplink's held command drives the plant directly.
+
+    ``meshcat``: optional ``pydrake.geometry.Meshcat``; the robot (and its workspace) are then
+    drawn by :func:`telesmooth.diagrams.visualization.AddRobotVisualizer`.
+    """
     builder = DiagramBuilder()
     ground = AddGroundStation(builder, scenario)
     robot = AddOnboardRobot(builder, scenario, initial_position_rad=ground.initial_position_rad)
     builder.Connect(ground.uplink.get_q_sent_output_port(), robot.GetInputPort("q_commanded"))
+    if meshcat is not None:
+        from telesmooth.diagrams.visualization import AddRobotVisualizer
+        AddRobotVisualizer(builder, robot, meshcat)
     logs = _log_ground(builder, ground, scenario)
     logs.update(_log_onboard(builder, robot, scenario.onboard.tracker.period_s))
     diagram = builder.Build()

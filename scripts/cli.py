@@ -181,6 +181,47 @@ def run_demo(args) -> int:
     return 0
 
 
+def _add_scenario_arguments(p) -> None:
+    p.add_argument("--scenario", type=Path, default=None,
+                   help="scenario YAML file (default: the built-in diagrams/scenarios.yaml)")
+    p.add_argument("--scenario-name", default=None, help="entry of the file (default Defaults)")
+    p.add_argument("--scenario-text", default=None,
+                   help="YAML overrides, e.g. \"{arm: space_arm, smoother: {method: bmfls}}\"")
+
+
+def _load_scenario(args):
+    from telesmooth.diagrams.scenario import load_scenario
+
+    return load_scenario(filename=args.scenario, scenario_name=args.scenario_name,
+                         scenario_text=args.scenario_text)
+
+
+def _add_simulate_parser(subparsers) -> None:
+    p = subparsers.add_parser(
+        "simulate",
+        help="run a scenario headless through the whole chain and write a report",
+    )
+    _add_scenario_arguments(p)
+    p.add_argument("--out", type=Path, default=Path("out/simulate"), help="report folder")
+    p.add_argument("--duration", type=float, default=None,
+                   help="simulated time in s (default: the recording + settle time)")
+    p.add_argument("--meshcat", action="store_true",
+                   help="also save a self-contained Meshcat replay, run.html")
+    p.set_defaults(handler=run_simulate)
+
+
+def run_simulate(args) -> int:
+    from telesmooth.scripts.simulate_report import write_simulation_report
+
+    scenario = _load_scenario(args)
+    if args.duration is not None and not (args.duration > 0):
+        raise ValueError(f"--duration = {args.duration!r} must be positive")
+    report = write_simulation_report(args.out, scenario, duration_s=args.duration,
+                                     meshcat_html=args.meshcat)
+    print(f"report: {report}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="telesmooth",
@@ -189,6 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
     subparsers = parser.add_subparsers(dest="command", required=True)
     _add_smooth_parser(subparsers)
     _add_demo_parser(subparsers)
+    _add_simulate_parser(subparsers)
     return parser
 
 

@@ -1,0 +1,224 @@
+"""Running a scenario headless and collecting what happened as plain arrays.
+
+:func:`simulate` builds the in-process chain (:func:`MakeTeleoperationDiagram`), advances it
+in chunks (reporting progress), and returns a :class:`SimulationRecord`: the operator's joint
+targets at 100 Hz, every uplink packet at 4 Hz, the FIFO's raw delayed samples, σ, the
+collision flags, and the robot's telemetry at 100 Hz. :func:`run_metrics` turns a record into
+the SPEC §6 figures.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+
+import numpy as np
+from pydrake.systems.analysis import Simulator
+
+from telesmooth.arms.planar import AIR_BEARING_ARM, planar_forward_kinematics
+from telesmooth.diagrams.scenario import Scenario
+from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram
+from telesmooth.smoothing.metrics import smoothing_metrics, tracking_errors
+from telesmooth.smoothing.validation import as_per_joint
+
+__all__ = ["SimulationRecord", "run_metrics", "simulate", "tool_positions"]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SimulationRecord:
+    """What a headless run produced (all arrays time-major).
+
+    Attributes:
+        scenario: The scenario run.
+        joint_names: Joint order of every joint array.
+        duration_s: Simulated time, s.
+        wall_time_s: Wall-clock time of the simulation, s.
+        target_t_s, q_target: IK joint targets (the pre-simulator's newest command), 100 Hz.
+        collision_detected, min_distance_m: pre-simulator flags at 100 Hz.
+        packet_seq, packet_t_s, packet_state: every uplink packet: number, send time and
+            [q, q̇, q̈, q⃛] (M, 4J) as sent.
+        tick_t_s, q_delayed, holding, sigma: at each 4 Hz tick (logged before the tick's
+            update, i.e. the values of the tick at that time).
+        tracker_t_s, q_link, q_motor, tool_position_m: robot telemetry, 100 Hz.
+    """
+
+    scenario: Scenario
+    joint_names: tuple[str, ...]
+    duration_s: float
+    wall_time_s: float
+    target_t_s: np.ndarray
+    q_target: np.ndarray
+    collision_detected: np.ndarray
+    min_distance_m: np.ndarray
+    packet_seq: np.ndarray
+    packet_t_s: np.ndarray
+    packet_state: np.ndarray
+    tick_t_s: np.ndarray
+    q_delayed: np.ndarray
+    holding: np.ndarray
+    sigma: np.ndarray
+    tracker_t_s: np.ndarray
+    q_link: np.ndarray
+    q_motor: np.ndarray
+    tool_position_m: np.ndarray
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def q_sent(self) -> np.ndarray:
+        """Positions of the packets, (M, J)."""
+        return self.packet_state[:, :self.num_joints]
+
+
+def tool_positions(scenario: Scenario, q) -> np.ndarray:
+    """Tool point in the base frame for joint positions (…, J), m; (…, 3)."""
+    q = np.asarray(q, dtype=float)
+    if scenario.arm == "air_bearing_arm":
+        xy = planar_forward_kinematics(q, AIR_BEARING_ARM.link_lengths_m)
+        return np.concatenate([xy, np.zeros(xy.shape[:-1] + (1,))], axis=-1)
+    from telesmooth.arms.space_arm_ik import SpaceArmKinematics
+    kinematics = SpaceArmKinematics(scenario.arm_description)
+    flat = q.reshape(-1, q.shape[-1])
+    points = np.array([kinematics.tool_pose(row)[:3] for row in flat])
+    return points.reshape(q.shape[:-1] + (3,))
+
+
+def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=None,
+             progress: Callable[[str], None] | None = None) -> SimulationRecord:
+    """Builds and runs the in-process chain; returns the record.
+
+    Args:
+        scenario: What to run.
+        duration_s: Simulated time; default ``scenario.simulation_duration_s`` or the
+            recording length + ``settle_s``.
+        meshcat: Optional Meshcat to draw the robot into.
+        progress: Called with a one-line message about every 10 % of the run.
+    """
+    handles = MakeTeleoperationDiagram(scenario, meshcat=meshcat)
+    recording = handles.ground.recording
+    if duration_s is None:
+        duration_s = scenario.simulation_duration_s
+    if duration_s is None:
+        duration_s = float(recording.t_s[-1] - recording.t_s[0]) + scenario.settle_s
+    simulator = Simulator(handles.diagram)
+    simulator.Initialize()
+    start = time.perf_counter()
+    # Ticks at exactly duration_s are not run by AdvanceTo; advance just past the last one.
+    end = duration_s + 1e-9
+    chunks = 10
+    for chunk in range(1, chunks + 1):
+        simulator.AdvanceTo(end * chunk / chunks)
+        if progress is not None:
+            elapsed = time.perf_counter() - start
+            progress(f"simulated {simulator.get_context().get_time():7.2f} / {duration_s:.2f} s "
+                     f"({100 * chunk // chunks:3d} %), wall {elapsed:6.1f} s")
+    wall = time.perf_counter() - start
+    context = simulator.get_context()
+
+    def log(name):
+        return handles.logs[name].FindLog(context)
+
+    seq = log("sequence_number").data()[0]
+    _, first = np.unique(seq, return_index=True)
+    keep = np.array([i for i in first if seq[i] >= 0], dtype=int)
+    packet_seq = seq[keep].astype(int)
+    packet_t = log("send_time").data()[0][keep]
+    packet_state = log("state_sent").data().T[keep]
+    # A packet sent after the loggers' last publish (e.g. at exactly duration_s) is read from
+    # the uplink's state directly.
+    uplink = handles.ground.uplink
+    uplink_context = uplink.GetMyContextFromRoot(context)
+    last_seq = int(uplink.get_sequence_number_output_port().Eval(uplink_context)[0])
+    if last_seq >= 0 and (packet_seq.size == 0 or last_seq > packet_seq[-1]):
+        packet_seq = np.append(packet_seq, last_seq)
+        packet_t = np.append(packet_t, uplink.get_send_time_output_port().Eval(uplink_context))
+        packet_state = np.vstack(
+            [packet_state, uplink.get_state_sent_output_port().Eval(uplink_context)])
+    ticks = log("sigma")
+    return SimulationRecord(
+        scenario=scenario, joint_names=handles.ground.joint_names, duration_s=duration_s,
+        wall_time_s=wall,
+        target_t_s=log("q_target").sample_times().copy(), q_target=log("q_target").data().T.copy(),
+        collision_detected=log("collision_detected").data()[0].copy(),
+        min_distance_m=log("min_distance").data()[0].copy(),
+        packet_seq=packet_seq, packet_t_s=np.asarray(packet_t, dtype=float).copy(),
+        packet_state=np.asarray(packet_state, dtype=float).copy(),
+        tick_t_s=ticks.sample_times().copy(), q_delayed=log("q_delayed").data().T.copy(),
+        holding=log("holding").data()[0].copy(), sigma=ticks.data().T.copy(),
+        tracker_t_s=log("q_link").sample_times().copy(), q_link=log("q_link").data().T.copy(),
+        q_motor=log("q_motor").data().T.copy(),
+        tool_position_m=log("position_measured").data().T.copy(),
+    )
+
+
+def _sample_at(times, values, at):
+    """values at the last sample time <= each of ``at`` (sample-and-hold lookup)."""
+    index = np.searchsorted(times, np.asarray(at) + 1e-9, side="right") - 1
+    return values[np.clip(index, 0, len(times) - 1)]
+
+
+def run_metrics(record: SimulationRecord) -> dict:
+    """SPEC §6 figures of a run, JSON-ready.
+
+    * ``commands``: the sent packets against the operator's joint targets of the same instant
+      (the IK target at t_k − delay): FD and state acceleration/jerk against the limits, joint
+      and Cartesian deformation.
+    * ``tracking``: e(k) = ‖FK(q_sent,k) − x_tracker(t_k + ramp)‖, the robot's response to each
+      command (tracker sampled when the interpolator has reached the command), and
+      ‖x_operator(t_k − delay) − x_tracker(t_k + ramp)‖, the whole chain's error.
+    """
+    scenario = record.scenario
+    n = record.num_joints
+    delay = scenario.fifo.delay_s
+    period = scenario.uplink.period_s
+    names = record.joint_names
+    a_max = as_per_joint("max_acceleration_rad_per_s2",
+                         scenario.smoother.max_acceleration_rad_per_s2, n, names, allow_inf=True)
+    j_max = as_per_joint("max_jerk_rad_per_s3", scenario.smoother.max_jerk_rad_per_s3, n,
+                         names, allow_inf=True)
+    sample_times = record.packet_t_s - delay
+    valid = sample_times >= 0.0
+    original = _sample_at(record.target_t_s, record.q_target, sample_times[valid])
+    sent = record.q_sent[valid]
+    states = record.packet_state[valid].reshape(-1, 4, n).transpose(0, 2, 1)
+
+    def fk(q):
+        return tool_positions(scenario, q)
+
+    commands = smoothing_metrics(
+        smoothed_positions=sent, original_positions=original, dt_s=period,
+        max_acceleration=a_max, max_jerk=j_max, smoothed_states=states,
+        forward_kinematics=fk, joint_names=names)
+    ramp = scenario.onboard.interpolator.ramp_duration_s \
+        if scenario.onboard.interpolator.interpolation == "linear" else 0.0
+    response_times = record.packet_t_s + ramp
+    inside = response_times <= record.tracker_t_s[-1]
+    measured = _sample_at(record.tracker_t_s, record.tool_position_m, response_times[inside])
+    e_response = tracking_errors(fk(record.q_sent[inside]), measured)
+    both = inside & valid
+    operator = fk(_sample_at(record.target_t_s, record.q_target, sample_times[both]))
+    e_chain = tracking_errors(
+        operator, _sample_at(record.tracker_t_s, record.tool_position_m, response_times[both]))
+    deflection = record.q_link - record.q_motor
+    return {
+        "scenario": {"arm": scenario.arm, "haptic_source": scenario.haptic.source,
+                     "method": scenario.smoother.method},
+        "duration_s": record.duration_s,
+        "wall_time_s": record.wall_time_s,
+        "realtime_factor": record.duration_s / max(record.wall_time_s, 1e-9),
+        "num_packets": int(record.packet_seq.size),
+        "collision_ticks": int(np.count_nonzero(record.holding > 0.5)),
+        "min_distance_m": float(np.min(record.min_distance_m)),
+        "final_sigma": record.sigma[-1].tolist() if record.sigma.size else None,
+        "commands": commands,
+        "tracking": {
+            "response_error_m": {"mean": float(np.mean(e_response)),
+                                 "max": float(np.max(e_response))},
+            "chain_error_m": {"mean": float(np.mean(e_chain)), "max": float(np.max(e_chain))},
+            "ramp_s": ramp,
+        },
+        "link_deflection_rad": {"max_abs": np.abs(deflection).max(axis=0).tolist()},
+    }
