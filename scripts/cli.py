@@ -222,6 +222,42 @@ def run_simulate(args) -> int:
     return 0
 
 
+def _add_process_parsers(subparsers) -> None:
+    from telesmooth.diagrams.channels import DEFAULT_LCM_URL
+
+    for name, text in (("ground", "run the ground station process (publishes the 4 Hz uplink)"),
+                       ("onboard", "run the onboard robot process (subscribes to the uplink)")):
+        p = subparsers.add_parser(name, help=text)
+        _add_scenario_arguments(p)
+        p.add_argument("--lcm-url", default=None,
+                       help=f"LCM URL (default: the scenario's, {DEFAULT_LCM_URL})")
+        p.add_argument("--duration", type=float, default=None,
+                       help="seconds to run (ground default: the recording + settle time)")
+        p.add_argument("--realtime", type=float, default=1.0,
+                       help="target real-time rate (default 1; 0 = as fast as possible)")
+        p.add_argument("--out", type=Path, default=None,
+                       help="folder for the sent/received commands (CSV)")
+        p.set_defaults(handler=run_process, process=name)
+
+
+def run_process(args) -> int:
+    from telesmooth.scripts.processes import run_ground, run_onboard
+
+    scenario = _load_scenario(args)
+    url = args.lcm_url or scenario.lcm_url
+    if args.duration is not None and not args.duration > 0:
+        raise ValueError(f"--duration = {args.duration!r} must be positive")
+    if not args.realtime >= 0:
+        raise ValueError(f"--realtime = {args.realtime!r} must be >= 0")
+    if args.process == "ground":
+        return run_ground(scenario, lcm_url=url, duration_s=args.duration,
+                          realtime=args.realtime, out=args.out)
+    if args.duration is None:
+        raise ValueError("onboard needs --duration (seconds to run)")
+    return run_onboard(scenario, lcm_url=url, duration_s=args.duration,
+                       realtime=args.realtime, out=args.out)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="telesmooth",
@@ -231,6 +267,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_smooth_parser(subparsers)
     _add_demo_parser(subparsers)
     _add_simulate_parser(subparsers)
+    _add_process_parsers(subparsers)
     return parser
 
 
