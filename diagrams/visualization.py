@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import shutil
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -40,12 +41,15 @@ from telesmooth.arms.workspace import Workspace
 __all__ = [
     "AddRobotVisualizer",
     "COLLISION_PREFIX",
+    "FRAMES_PER_SECOND",
     "ILLUSTRATION_PREFIX",
     "OBSTACLE_RGBA",
     "RobotVisualizers",
+    "TOOL_PATH_PATH",
     "TOOL_PATH_RGBA",
     "WALL_RGBA",
     "WORKSPACE_PATH",
+    "commanded_tool_points",
     "diagram_svg",
     "draw_tool_path",
     "draw_workspace",
@@ -305,7 +309,11 @@ def diagram_svg(diagram, *, max_depth: int | None = 1) -> str:
     import pydot  # a drake dependency; imported here so the rest works without it
 
     dot_text = diagram.GetGraphvizString(max_depth=max_depth)
-    graphs = pydot.graph_from_dot_data(dot_text)
+    with warnings.catch_warnings():
+        # pydot 4's parser still calls pyparsing's camelCase names (deprecated in pyparsing
+        # 3.3); the warnings are about pydot's code, not ours, and say nothing about the graph.
+        warnings.simplefilter("ignore", DeprecationWarning)
+        graphs = pydot.graph_from_dot_data(dot_text)
     if not graphs:
         raise RuntimeError("pydot could not parse the diagram's Graphviz text")
     svg = graphs[0].create_svg()
