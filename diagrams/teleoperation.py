@@ -105,7 +105,8 @@ class TeleoperationHandles:
     scenario: Scenario | None = None
 
 
-def _smoother_config(scenario: Scenario):
+def scenario_smoother_config(scenario: Scenario):
+    """The smoother config of ``scenario``, with r divided by M under the period mean."""
     config = scenario.smoother
     if scenario.period_mean:
         # Averaging M samples of white hand noise divides its variance by M (SPEC §5.1).
@@ -174,7 +175,7 @@ def AddGroundStation(builder: DiagramBuilder, scenario: Scenario, *,
 
     # Stage 5: the reduced-Q fixed-lag smoother on the FIFO's window.
     smoother = builder.AddNamedSystem("smoother", ReducedQSmoother(
-        _smoother_config(scenario), joint_names=arm.joint_names, initial_position_rad=q0))
+        scenario_smoother_config(scenario), joint_names=arm.joint_names, initial_position_rad=q0))
     builder.Connect(fifo.get_q_newest_output_port(), smoother.get_q_sample_input_port())
     builder.Connect(fifo.get_reset_output_port(), smoother.get_reset_input_port())
 
@@ -201,7 +202,8 @@ def AddOnboardRobot(builder: DiagramBuilder, scenario: Scenario, *,
     return builder.AddNamedSystem("robot", FlexibleJointArm(config))
 
 
-def _log_ground(builder, ground: GroundHandles, scenario: Scenario) -> dict:
+def add_ground_loggers(builder, ground: GroundHandles, scenario: Scenario) -> dict:
+    """Loggers of the ground station's targets, flags, packets, FIFO output and σ."""
     haptic_period = scenario.haptic.period_s
     tick = scenario.uplink.period_s
     ik, checker, uplink = ground.inverse_kinematics, ground.collision_checker, ground.uplink
@@ -224,7 +226,8 @@ def _log_ground(builder, ground: GroundHandles, scenario: Scenario) -> dict:
     }
 
 
-def _log_onboard(builder, robot: FlexibleJointArm, period_s: float) -> dict:
+def add_onboard_loggers(builder, robot: FlexibleJointArm, period_s: float) -> dict:
+    """Loggers of the robot's link/motor angles, tool position and rejected-command flag."""
     return {
         "q_link": LogVectorOutput(robot.GetOutputPort("q_link"), builder, period_s),
         "q_motor": LogVectorOutput(robot.GetOutputPort("q_motor"), builder, period_s),
@@ -248,8 +251,8 @@ def MakeTeleoperationDiagram(scenario: Scenario, *, meshcat=None) -> Teleoperati
     if meshcat is not None:
         from telesmooth.diagrams.visualization import AddRobotVisualizer
         AddRobotVisualizer(builder, robot, meshcat)
-    logs = _log_ground(builder, ground, scenario)
-    logs.update(_log_onboard(builder, robot, scenario.onboard.tracker.period_s))
+    logs = add_ground_loggers(builder, ground, scenario)
+    logs.update(add_onboard_loggers(builder, robot, scenario.onboard.tracker.period_s))
     diagram = builder.Build()
     diagram.set_name("teleoperation")
     return TeleoperationHandles(diagram=diagram, ground=ground,
@@ -291,7 +294,7 @@ def MakeGroundDiagram(scenario: Scenario, *, lcm: DrakeLcm) -> TeleoperationHand
                                 publish_period=period,
                                 publish_offset=scenario.publish_offset_s))
     builder.Connect(events.get_lcm_message_output_port(), event_publisher.get_input_port())
-    logs = _log_ground(builder, ground, scenario)
+    logs = add_ground_loggers(builder, ground, scenario)
     diagram = builder.Build()
     diagram.set_name("ground")
     return TeleoperationHandles(diagram=diagram, ground=ground, onboard=None, logs=logs,
@@ -337,7 +340,7 @@ def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm,
                                 publish_period=tracker_period,
                                 publish_offset=scenario.publish_offset_s))
     builder.Connect(status.get_lcm_message_output_port(), status_publisher.get_input_port())
-    logs = _log_onboard(builder, robot, tracker_period)
+    logs = add_onboard_loggers(builder, robot, tracker_period)
     logs["q_commanded"] = LogVectorOutput(receiver.get_q_commanded_output_port(), builder,
                                           tracker_period)
     logs["last_command_seq"] = LogVectorOutput(receiver.get_last_command_seq_output_port(),
