@@ -17,7 +17,12 @@ import numpy as np
 
 from telesmooth.arms.description import SPACE_ARM_6DOF
 
-__all__ = ["SHOULDER_IN_BASE_M", "planar_joints_to_space_arm", "planar_pose_to_space_arm"]
+__all__ = [
+    "SHOULDER_IN_BASE_M",
+    "planar_joints_to_space_arm",
+    "planar_pose_to_space_arm",
+    "space_arm_pose_to_planar",
+]
 
 SHOULDER_IN_BASE_M = SPACE_ARM_6DOF.link_origins_m()[1]
 """The shoulder-pitch axis point of the 6-DOF arm in its base frame, m."""
@@ -44,3 +49,15 @@ def planar_joints_to_space_arm(q) -> np.ndarray:
     lifted = np.zeros(q.shape[:-1] + (6,))
     lifted[..., 1:4] = q
     return lifted
+
+
+def space_arm_pose_to_planar(pose) -> np.ndarray:
+    """Inverse of :func:`planar_pose_to_space_arm` for poses in the plane: (…, 6) → (…, 3).
+
+    The y, roll and yaw components are ignored (they are 0 in the air-bearing plane).
+    """
+    pose = np.asarray(pose, dtype=float)
+    if pose.shape[-1] != 6:
+        raise ValueError(f"6-DOF pose has shape {pose.shape}; expected (..., 6)")
+    return np.stack([pose[..., 0] - SHOULDER_IN_BASE_M[0], pose[..., 2] - SHOULDER_IN_BASE_M[2],
+                     -pose[..., 4]], axis=-1)

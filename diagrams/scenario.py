@@ -20,7 +20,11 @@ import pathlib
 
 import numpy as np
 
-from telesmooth.arms.air_bearing import planar_joints_to_space_arm, planar_pose_to_space_arm
+from telesmooth.arms.air_bearing import (
+    planar_joints_to_space_arm,
+    planar_pose_to_space_arm,
+    space_arm_pose_to_planar,
+)
 from telesmooth.arms.description import AIR_BEARING_ARM_3DOF, SPACE_ARM_6DOF, ArmDescription
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_3r_inverse_kinematics
 from telesmooth.arms.workspace import AIR_BEARING_WORKSPACE, SPACE_ARM_WORKSPACE, Workspace
@@ -234,10 +238,7 @@ def initial_position(scenario: Scenario, recording: HapticRecording | None) -> n
         planar_pose = recording.pose[0]
     else:
         # A 6-DOF recording: take the air-bearing plane's planar pose if it lies in it.
-        from telesmooth.arms.air_bearing import SHOULDER_IN_BASE_M
-        pose = recording.pose[0]
-        planar_pose = np.array([pose[0] - SHOULDER_IN_BASE_M[0],
-                                pose[2] - SHOULDER_IN_BASE_M[2], -pose[4]])
+        planar_pose = space_arm_pose_to_planar(recording.pose[0])
     q, reachable = planar_3r_inverse_kinematics(
         planar_pose[:2], planar_pose[2], AIR_BEARING_ARM,
         elbow=scenario.inverse_kinematics.elbow)

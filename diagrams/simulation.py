@@ -10,6 +10,7 @@ the SPEC §6 figures.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from collections.abc import Callable
 
@@ -18,7 +19,7 @@ from pydrake.systems.analysis import Simulator
 
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_forward_kinematics
 from telesmooth.diagrams.scenario import Scenario
-from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram
+from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram, uplink_packets
 from telesmooth.smoothing.metrics import smoothing_metrics, tracking_errors
 from telesmooth.smoothing.validation import as_per_joint
 
@@ -73,14 +74,21 @@ class SimulationRecord:
         return self.packet_state[:, :self.num_joints]
 
 
+@functools.lru_cache(maxsize=4)
+def _space_arm_kinematics(arm):
+    """One kinematics plant per arm description (building it parses the model)."""
+    from telesmooth.arms.space_arm_ik import SpaceArmKinematics
+
+    return SpaceArmKinematics(arm)
+
+
 def tool_positions(scenario: Scenario, q) -> np.ndarray:
     """Tool point in the base frame for joint positions (…, J), m; (…, 3)."""
     q = np.asarray(q, dtype=float)
     if scenario.arm == "air_bearing_arm":
         xy = planar_forward_kinematics(q, AIR_BEARING_ARM.link_lengths_m)
         return np.concatenate([xy, np.zeros(xy.shape[:-1] + (1,))], axis=-1)
-    from telesmooth.arms.space_arm_ik import SpaceArmKinematics
-    kinematics = SpaceArmKinematics(scenario.arm_description)
+    kinematics = _space_arm_kinematics(scenario.arm_description)
     flat = q.reshape(-1, q.shape[-1])
     points = np.array([kinematics.tool_pose(row)[:3] for row in flat])
     return points.reshape(q.shape[:-1] + (3,))
@@ -121,12 +129,7 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
     def log(name):
         return handles.logs[name].FindLog(context)
 
-    seq = log("sequence_number").data()[0]
-    _, first = np.unique(seq, return_index=True)
-    keep = np.array([i for i in first if seq[i] >= 0], dtype=int)
-    packet_seq = seq[keep].astype(int)
-    packet_t = log("send_time").data()[0][keep]
-    packet_state = log("state_sent").data().T[keep]
+    packet_seq, packet_t, packet_state = uplink_packets(handles, context)
     # A packet sent after the loggers' last publish (e.g. at exactly duration_s) is read from
     # the uplink's state directly.
     uplink = handles.ground.uplink

@@ -66,6 +66,8 @@ __all__ = [
     "TeleoperationHandles",
     "AddGroundStation",
     "AddOnboardRobot",
+    "first_sample_indices",
+    "uplink_packets",
 ]
 
 
@@ -224,6 +226,27 @@ def add_ground_loggers(builder, ground: GroundHandles, scenario: Scenario) -> di
         "holding": LogVectorOutput(ground.fifo.get_holding_output_port(), builder, tick),
         "sigma": LogVectorOutput(ground.smoother.get_sigma_output_port(), builder, tick),
     }
+
+
+def first_sample_indices(sequence) -> np.ndarray:
+    """Indices where each non-negative value of a logged sequence number first appears.
+
+    Counters like the uplink's sequence number are logged faster than they change; this picks
+    one row per value (−1, "nothing yet", is skipped).
+    """
+    sequence = np.asarray(sequence)
+    _, first = np.unique(sequence, return_index=True)
+    first = np.sort(first)
+    return first[sequence[first] >= 0]
+
+
+def uplink_packets(handles: "TeleoperationHandles", context):
+    """The logged uplink packets of a run: (seq (M,), send times (M,), states (M, 4J))."""
+    logs = handles.logs
+    seq = logs["sequence_number"].FindLog(context).data()[0]
+    rows = first_sample_indices(seq)
+    return (seq[rows].astype(int), logs["send_time"].FindLog(context).data()[0][rows],
+            logs["state_sent"].FindLog(context).data().T[rows])
 
 
 def add_onboard_loggers(builder, robot: FlexibleJointArm, period_s: float) -> dict:

@@ -55,7 +55,7 @@ def run_ground(scenario, *, lcm_url: str, duration_s: float | None, realtime: fl
     from pydrake.lcm import DrakeLcm
     from pydrake.systems.analysis import Simulator
 
-    from telesmooth.diagrams.teleoperation import MakeGroundDiagram
+    from telesmooth.diagrams.teleoperation import MakeGroundDiagram, uplink_packets
 
     lcm = DrakeLcm(_check_url(lcm_url))
     handles = MakeGroundDiagram(scenario, lcm=lcm)
@@ -68,12 +68,9 @@ def run_ground(scenario, *, lcm_url: str, duration_s: float | None, realtime: fl
     _advance(simulator, duration_s, realtime, "ground")
     if out is not None:
         context = simulator.get_context()
-        seq = handles.logs["sequence_number"].FindLog(context).data()[0]
-        times = handles.logs["send_time"].FindLog(context).data()[0]
-        states = handles.logs["state_sent"].FindLog(context).data().T
-        _, first = np.unique(seq, return_index=True)
+        seq, times, states = uplink_packets(handles, context)
         n = len(handles.ground.joint_names)
-        rows = [[seq[i], times[i], *states[i, :n]] for i in first if seq[i] >= 0]
+        rows = [[k, t, *state[:n]] for k, t, state in zip(seq, times, states)]
         _write_rows(Path(out) / "ground_commands.csv",
                     ["seq", "send_t"] + [f"q_{j}" for j in handles.ground.joint_names], rows)
     return 0
@@ -84,7 +81,7 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
     from pydrake.lcm import DrakeLcm
     from pydrake.systems.analysis import Simulator
 
-    from telesmooth.diagrams.teleoperation import MakeOnboardDiagram
+    from telesmooth.diagrams.teleoperation import MakeOnboardDiagram, first_sample_indices
 
     lcm = DrakeLcm(_check_url(lcm_url))
     handles = MakeOnboardDiagram(scenario, lcm=lcm)
@@ -97,8 +94,8 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
         seq_log = handles.logs["last_command_seq"].FindLog(context)
         seq = seq_log.data()[0]
         commanded = handles.logs["q_commanded"].FindLog(context).data().T
-        _, first = np.unique(seq, return_index=True)
-        rows = [[seq[i], seq_log.sample_times()[i], *commanded[i]] for i in first if seq[i] >= 0]
+        rows = [[seq[i], seq_log.sample_times()[i], *commanded[i]]
+                for i in first_sample_indices(seq)]
         _write_rows(Path(out) / "onboard_commands.csv",
                     ["seq", "received_t"] + [f"q_{j}" for j in names], rows)
         telemetry = handles.logs["q_link"].FindLog(context)

@@ -261,7 +261,6 @@ class CommandInterpolator(LeafSystem):
         self._joint_names = names
         self._lower = lower
         self._upper = upper
-        self._initial_position = q0
 
         self._q_commanded_input = self.DeclareVectorInputPort("q_commanded", n)
 
@@ -339,7 +338,10 @@ class CommandInterpolator(LeafSystem):
     # -- callbacks ------------------------------------------------------------------------
 
     def _desired(self, context) -> tuple[np.ndarray, np.ndarray]:
-        start, target, start_time = self.get_ramp(context)
+        # Read the state in place (ramp_desired_state does not modify its inputs).
+        start = context.get_discrete_state(self._ramp_start_state).get_value()
+        target = context.get_discrete_state(self._ramp_target_state).get_value()
+        start_time = context.get_discrete_state(self._ramp_start_time_state).get_value()[0]
         return ramp_desired_state(
             start, target, start_time, self._config.ramp_duration_s, context.get_time())
 

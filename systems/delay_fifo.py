@@ -14,7 +14,8 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from pydrake.systems.framework import BasicVector, LeafSystem
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from telesmooth.systems.timing import check_period, delay_in_samples
 
@@ -142,6 +143,9 @@ class DelayFifo(LeafSystem):
         # [holding, clutch seen released during the hold]
         self._hold_state = self.DeclareDiscreteState(np.zeros(2))
         self._last_delayed_state = self.DeclareDiscreteState(q0.copy())
+        self._tick_cache = self.DeclareCacheEntry(
+            "tick", ValueProducer(allocate=lambda: AbstractValue.Make(object()),
+                                  calc=lambda c, value: value.set_value(self._compute_tick(c))))
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update_queue)
         # A forced update runs the same tick on demand (CalcForcedDiscreteVariableUpdate).
         self.DeclareForcedDiscreteUpdateEvent(self._update_queue)
@@ -198,6 +202,11 @@ class DelayFifo(LeafSystem):
     # -- the tick -------------------------------------------------------------------------
 
     def _tick(self, context):
+        """The tick at this time, computed once per context change (shared by every output
+        port and the update)."""
+        return self._tick_cache.Eval(context)
+
+    def _compute_tick(self, context):
         """(window (L+1, J), hold flag, clutch-released flag) of a tick at this time."""
         n, lag = self._num_joints, self._lag
         queue = context.get_discrete_state(self._queue_state).get_value().reshape(lag, n)

@@ -24,7 +24,6 @@ import dataclasses
 import math
 
 import numpy as np
-from pydrake.geometry import CollisionFilterDeclaration, GeometrySet
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import MatrixGain
@@ -239,8 +238,9 @@ class FlexibleJointArm(Diagram):
     previous target and ``command_rejected`` is 1.0 until a valid command is received.
 
     Collision filtering: the rotor bodies between the links break Drake's automatic
-    parent/child filter. The SDF declares filter groups for consecutive links, and this
-    class applies the same exclusions again, so no consecutive link pair can be in contact.
+    parent/child filter; the generated SDF declares ``drake:collision_filter_group``s for
+    every consecutive link pair (``ArmDescription.filtered_pairs``), so none can be in
+    contact.
     """
 
     def __init__(self, config: FlexibleArmConfig = FlexibleArmConfig()):
@@ -277,7 +277,6 @@ class FlexibleJointArm(Diagram):
             plant.GetJointByName(name + "_motor", instance).set_default_angle(angle)
             plant.GetJointByName(name + "_deflection", instance).set_default_angle(0.0)
         plant.Finalize()
-        self._exclude_consecutive_links(plant, scene_graph, arm)
 
         # Motor set-point: held 4 Hz commands → [q_d; v_d], unsafe commands rejected.
         interpolator = builder.AddNamedSystem("command_interpolator", CommandInterpolator(
@@ -316,16 +315,6 @@ class FlexibleJointArm(Diagram):
         self._model_instance = instance
         self._interpolator = interpolator
         self._tracker = tracker
-
-    @staticmethod
-    def _exclude_consecutive_links(plant, scene_graph, arm: ArmDescription) -> None:
-        """Excludes collisions between the arm's filtered link pairs (consecutive links)."""
-        manager = scene_graph.collision_filter_manager()
-        for body_a, body_b in arm.filtered_pairs():
-            geometries_a = plant.GetCollisionGeometriesForBody(plant.GetBodyByName(body_a))
-            geometries_b = plant.GetCollisionGeometriesForBody(plant.GetBodyByName(body_b))
-            manager.Apply(CollisionFilterDeclaration().ExcludeBetween(
-                GeometrySet(geometries_a), GeometrySet(geometries_b)))
 
     # -- accessors ------------------------------------------------------------------------
 

@@ -37,8 +37,6 @@ from telesmooth.arms.planar import (
 from telesmooth.arms.space_arm_ik import (
     SpaceArmIkStatus,
     SpaceArmKinematics,
-    pose_error,
-    pose_to_rigid_transform,
     solve_space_arm_ik,
 )
 from telesmooth.datasets.haptic_recording import PLANAR_POSE_NAMES, SPATIAL_POSE_NAMES
@@ -239,7 +237,7 @@ class InverseKinematicsSystem(LeafSystem):
 
     State (discrete, one group each): q_target (n); clutch offset (planar: dx, dy, dphi;
     6-DOF: dx, dy, dz and R_off as a unit quaternion qw, qx, qy, qz); previous enable e (1);
-    flags (ik_failed, ik_status) (2); pose_commanded (m).
+    ik_status (1; ik_failed is derived from it); pose_commanded (m).
 
     Update at t_k = k·period_s (offset 0), with u = pose_desired(t_k), e_k = enable(t_k):
 
@@ -328,11 +326,11 @@ class InverseKinematicsSystem(LeafSystem):
         self._q_state = self.DeclareDiscreteState(q0)
         self._offset_state = self.DeclareDiscreteState(offset0)
         self._previous_enable_state = self.DeclareDiscreteState(np.ones(1))
-        self._flags_state = self.DeclareDiscreteState(np.array([0.0, float(IkStatus.OK)]))
+        self._status_state = self.DeclareDiscreteState(np.array([float(IkStatus.OK)]))
         self._pose_commanded_state = self.DeclareDiscreteState(self.forward_kinematics_pose(q0))
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update)
 
-        flags_ticket = {self.discrete_state_ticket(self._flags_state)}
+        flags_ticket = {self.discrete_state_ticket(self._status_state)}
         self._q_target_output = self.DeclareStateOutputPort("q_target", self._q_state)
         self._ik_failed_output = self.DeclareVectorOutputPort(
             "ik_failed", 1, self._calc_ik_failed, prerequisites_of_calc=flags_ticket)
@@ -449,8 +447,8 @@ class InverseKinematicsSystem(LeafSystem):
                 return result.q_rad, status
             q = result.q_rad
             within_limits = bool(np.all((q >= self._lower) & (q <= self._upper)))
-            position_m, orientation_rad = pose_error(
-                self._kinematics.tool_transform(q), pose_to_rigid_transform(pose_commanded))
+            # The solver already measured the pose error of this q against this target.
+            position_m, orientation_rad = result.error.position_m, result.error.orientation_rad
         if not within_limits:
             return q, IkStatus.JOINT_LIMIT
         if not (position_m <= config.position_tolerance_m
@@ -492,18 +490,17 @@ class InverseKinematicsSystem(LeafSystem):
                 status = IkStatus.INVALID_INPUT
             engaged_next = 1.0
 
-        failed = status not in (IkStatus.OK, IkStatus.DISENGAGED)
         discrete_state.get_mutable_vector(self._q_state).SetFromVector(q)
         discrete_state.get_mutable_vector(self._offset_state).SetFromVector(offset)
         discrete_state.get_mutable_vector(self._previous_enable_state).SetFromVector(
             [engaged_next])
-        discrete_state.get_mutable_vector(self._flags_state).SetFromVector(
-            [float(failed), float(status)])
+        discrete_state.get_mutable_vector(self._status_state).SetFromVector([float(status)])
         discrete_state.get_mutable_vector(self._pose_commanded_state).SetFromVector(
             pose_commanded)
 
     def _calc_ik_failed(self, context, output) -> None:
-        output.SetAtIndex(0, context.get_discrete_state(self._flags_state).get_value()[0])
+        status = IkStatus(int(context.get_discrete_state(self._status_state).get_value()[0]))
+        output.SetAtIndex(0, float(status not in (IkStatus.OK, IkStatus.DISENGAGED)))
 
     def _calc_ik_status(self, context, output) -> None:
-        output.SetAtIndex(0, context.get_discrete_state(self._flags_state).get_value()[1])
+        output.SetAtIndex(0, context.get_discrete_state(self._status_state).get_value()[0])

@@ -187,12 +187,7 @@ class LaserTracker(LeafSystem):
 
         Use after changing the plant's state in a context by hand (e.g. initial positions).
         """
-        position, q_link, q_motor = self._sample(
-            self._plant_state_input.Eval(context), context.get_time())
-        context.SetDiscreteState(self._position_state, position)
-        context.SetDiscreteState(self._q_link_state, q_link)
-        context.SetDiscreteState(self._q_motor_state, q_motor)
-        context.SetDiscreteState(self._sample_time_state, [context.get_time()])
+        self._update_sample(context, context.get_mutable_discrete_state())
 
     # -- callbacks ------------------------------------------------------------------------
 

@@ -13,7 +13,8 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from pydrake.systems.framework import LeafSystem
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from telesmooth.smoothing.model import (
     DEFAULT_LAG,
@@ -179,6 +180,9 @@ class ReducedQSmoother(LeafSystem):
         self._reset_input = self.DeclareVectorInputPort("reset", 1)
         self._online_state = self.DeclareDiscreteState(self._packer.pack(initial))
         self._raw_window_state = self.DeclareDiscreteState(np.tile(q0, lag + 1))
+        self._tick_cache = self.DeclareCacheEntry(
+            "tick", ValueProducer(allocate=lambda: AbstractValue.Make(object()),
+                                  calc=lambda c, value: value.set_value(self._compute_tick(c))))
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update_smoother)
         # A forced update runs the same tick on demand (CalcForcedDiscreteVariableUpdate).
         self.DeclareForcedDiscreteUpdateEvent(self._update_smoother)
@@ -230,6 +234,11 @@ class ReducedQSmoother(LeafSystem):
     # -- the tick -------------------------------------------------------------------------
 
     def _tick(self, context):
+        """The tick at this time, computed once per context change (shared by every output
+        port and the update)."""
+        return self._tick_cache.Eval(context)
+
+    def _compute_tick(self, context):
         """(new core state, output block (J, 4), triggered (J,), new raw window) at this time."""
         n, lag = len(self._joint_names), self._config.lag
         z = np.array(self._q_sample_input.Eval(context), dtype=float)

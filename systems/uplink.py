@@ -86,22 +86,31 @@ class Uplink(LeafSystem):
         self._num_joints = n
         self._q_smoothed_input = self.DeclareVectorInputPort("q_smoothed", n)
         self._state_smoothed_input = self.DeclareVectorInputPort("state_smoothed", 4 * n)
-        self._q_sent_state = self.DeclareDiscreteState(q0)
+        # [q_sent, q̇, q̈, q⃛] of the last packet; q_sent is its first J entries.
         self._state_sent_state = self.DeclareDiscreteState(np.concatenate([q0, np.zeros(3 * n)]))
-        self._sequence_state = self.DeclareDiscreteState([-1.0])
-        self._send_time_state = self.DeclareDiscreteState([-1.0])
-        self._rejected_state = self.DeclareDiscreteState([0.0])
+        # [sequence number, send time, rejected flag] of the last packet.
+        self._packet_state = self.DeclareDiscreteState([-1.0, -1.0, 0.0])
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update_packet)
         # A forced update runs the same tick on demand (CalcForcedDiscreteVariableUpdate).
         self.DeclareForcedDiscreteUpdateEvent(self._update_packet)
-        self._q_sent_output = self.DeclareStateOutputPort("q_sent", self._q_sent_state)
+        state_only = {self.xd_ticket()}   # outputs read the state only: no feedthrough
+
+        def packet_field(index):
+            return lambda c, out: out.SetAtIndex(
+                0, c.get_discrete_state(self._packet_state).get_value()[index])
+
+        self._q_sent_output = self.DeclareVectorOutputPort(
+            "q_sent", n, lambda c, out: out.SetFromVector(
+                c.get_discrete_state(self._state_sent_state).get_value()[:n]),
+            prerequisites_of_calc=state_only)
         self._state_sent_output = self.DeclareStateOutputPort(
             "state_sent", self._state_sent_state)
-        self._sequence_output = self.DeclareStateOutputPort(
-            "sequence_number", self._sequence_state)
-        self._send_time_output = self.DeclareStateOutputPort("send_time", self._send_time_state)
-        self._rejected_output = self.DeclareStateOutputPort(
-            "command_rejected", self._rejected_state)
+        self._sequence_output = self.DeclareVectorOutputPort(
+            "sequence_number", 1, packet_field(0), prerequisites_of_calc=state_only)
+        self._send_time_output = self.DeclareVectorOutputPort(
+            "send_time", 1, packet_field(1), prerequisites_of_calc=state_only)
+        self._rejected_output = self.DeclareVectorOutputPort(
+            "command_rejected", 1, packet_field(2), prerequisites_of_calc=state_only)
 
     @property
     def config(self) -> UplinkConfig:
@@ -129,22 +138,16 @@ class Uplink(LeafSystem):
         return self._rejected_output
 
     def _update_packet(self, context, discrete_state):
+        n = self._num_joints
         command = np.asarray(self._q_smoothed_input.Eval(context), dtype=float)
-        previous = context.get_discrete_state(self._q_sent_state).get_value()
-        n = previous.shape[0]
         derivatives = np.zeros(3 * n)
         if self._state_smoothed_input.HasValue(context):
             derivatives = np.asarray(self._state_smoothed_input.Eval(context), float)[n:]
-        valid = (command.shape == previous.shape and bool(np.all(np.isfinite(command)))
+        valid = (command.shape == (n,) and bool(np.all(np.isfinite(command)))
                  and bool(np.all(np.isfinite(derivatives))))
-        sequence = context.get_discrete_state(self._sequence_state).get_value()[0] + 1.0
-        discrete_state.get_mutable_vector(self._q_sent_state).SetFromVector(
-            command if valid else previous)
-        if valid:
+        sequence = context.get_discrete_state(self._packet_state).get_value()[0] + 1.0
+        if valid:   # otherwise the previous packet's command is sent again
             discrete_state.get_mutable_vector(self._state_sent_state).SetFromVector(
                 np.concatenate([command, derivatives]))
-        discrete_state.get_mutable_vector(self._sequence_state).SetFromVector([sequence])
-        discrete_state.get_mutable_vector(self._send_time_state).SetFromVector(
-            [context.get_time()])
-        discrete_state.get_mutable_vector(self._rejected_state).SetFromVector(
-            [0.0 if valid else 1.0])
+        discrete_state.get_mutable_vector(self._packet_state).SetFromVector(
+            [sequence, context.get_time(), 0.0 if valid else 1.0])

@@ -12,20 +12,14 @@ from telesmooth.diagrams.teleoperation import (
     MakeGroundDiagram,
     MakeOnboardDiagram,
     MakeTeleoperationDiagram,
+    uplink_packets,
 )
 
 TICK = 0.25
 LAG = 3
 
 
-def packets(handles, context):
-    """Per uplink packet: (seq, send_time, state_sent) from the 100 Hz logs, deduplicated."""
-    seq = handles.logs["sequence_number"].FindLog(context).data()[0]
-    times = handles.logs["send_time"].FindLog(context).data()[0]
-    states = handles.logs["state_sent"].FindLog(context).data().T
-    _, first = np.unique(seq, return_index=True)
-    keep = [i for i in first if seq[i] >= 0]
-    return seq[keep].astype(int), times[keep], states[keep]
+packets = uplink_packets   # per packet: (seq, send_time, state_sent), deduplicated
 
 
 @pytest.mark.parametrize("name,duration", [("Defaults", 4.0), ("OneOfEverything", None)])
