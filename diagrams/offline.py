@@ -46,17 +46,15 @@ from telesmooth.arms.collision import ArmCollisionModel
 from telesmooth.diagrams.scenario import Scenario, initial_position, make_haptic_recording
 from telesmooth.diagrams.teleoperation import (
     AddOnboardRobot,
+    AddOperatorTargets,
     add_onboard_loggers,
     scenario_smoother_config,
 )
-from telesmooth.smoothing.metrics import VIOLATION_RTOL, limit_statistics
+from telesmooth.smoothing.metrics import VIOLATION_RTOL, finite_differences, limit_statistics
 from telesmooth.smoothing.model import JerkModel
 from telesmooth.smoothing.offline import HISTORY_LENGTH, OFFLINE_CONSTRAINTS, solve_offline_cks
 from telesmooth.smoothing.validation import as_per_joint
 from telesmooth.systems.flexible_arm import FlexibleJointArm
-from telesmooth.systems.haptic_source import HapticSource, HapticSourceConfig
-from telesmooth.systems.inverse_kinematics import InverseKinematicsSystem
-from telesmooth.systems.period_mean import PeriodMean, PeriodMeanConfig
 from telesmooth.systems.uplink import Uplink
 
 __all__ = [
@@ -261,7 +259,8 @@ def _describe_violations(violations) -> str:
 def joint_targets_at_uplink_rate(scenario: Scenario, *, num_ticks: int | None = None):
     """Runs the scenario's recording through the ground station's IK; one sample per tick.
 
-    Builds HapticSource → InverseKinematicsSystem (→ PeriodMean when ``scenario.period_mean``)
+    Builds the ground station's operator stages (``AddOperatorTargets``: haptic source → IK →
+    period mean when ``scenario.period_mean``)
     and logs the stream the FIFO would read at the uplink period, so row k is the FIFO's z_k.
 
     Args:
@@ -283,7 +282,6 @@ def joint_targets_at_uplink_rate(scenario: Scenario, *, num_ticks: int | None = 
         raise ValueError("offline planning needs a recorded session; haptic.source = 'lcm' "
                          "is a live device")
     q0 = initial_position(scenario, recording)
-    arm = scenario.arm_description
     haptic_period = scenario.haptic.period_s
     tick = scenario.uplink.period_s
     duration = float(recording.t_s[-1] - recording.t_s[0])
@@ -294,19 +292,9 @@ def joint_targets_at_uplink_rate(scenario: Scenario, *, num_ticks: int | None = 
         raise ValueError(f"num_ticks = {num_ticks!r} must be an integer >= 2")
 
     builder = DiagramBuilder()
-    haptic = builder.AddNamedSystem("haptic_source", HapticSource(
-        recording, HapticSourceConfig(period_s=haptic_period)))
-    ik = builder.AddNamedSystem("inverse_kinematics", InverseKinematicsSystem(
-        scenario.inverse_kinematics, arm=arm, initial_position_rad=q0))
-    builder.Connect(haptic.get_pose_desired_output_port(), ik.get_pose_desired_input_port())
-    builder.Connect(haptic.get_enable_output_port(), ik.get_enable_input_port())
-    sampled = ik.get_q_target_output_port()
-    if scenario.period_mean:
-        mean = builder.AddNamedSystem("period_mean", PeriodMean(
-            PeriodMeanConfig(sample_period_s=haptic_period, window_s=tick),
-            num_joints=arm.num_joints, initial_position_rad=q0))
-        builder.Connect(ik.get_q_target_output_port(), mean.get_q_target_input_port())
-        sampled = mean.get_q_mean_output_port()
+    operator = AddOperatorTargets(builder, scenario, recording=recording,
+                                  initial_position_rad=q0)
+    ik, sampled = operator.inverse_kinematics, operator.q_sampled
     samples_log = LogVectorOutput(sampled, builder, tick)
     failed_log = LogVectorOutput(ik.get_ik_failed_output_port(), builder, haptic_period)
     diagram = builder.Build()
@@ -482,7 +470,7 @@ def _validate(q, t_s, scenario: Scenario, *, start_position=None, check_fd_limit
     fd_stats, fd_violations = {}, []
     for order in sorted(limits_by_order):
         kind, limit = limits_by_order[order]
-        values = np.diff(extended, n=order, axis=0) / period**order
+        values = finite_differences(extended, period, order)
         fd_stats[kind] = limit_statistics(values, limit)
         if not check_fd_limits:
             continue
@@ -658,10 +646,12 @@ def MakeOfflinePlaybackDiagram(scenario: Scenario, plan: OfflinePlan) -> Offline
                          f"period {period!r} s")
     if not plan.is_valid:
         raise ValueError("refusing to play back an invalid offline plan: " + plan.reason)
-    recheck = _validate(plan.q_planned, plan.t_s, scenario, start_position=plan.q_start,
-                        check_fd_limits=plan.validation.fd_limits_enforced,
-                        max_velocity=plan.solver.max_velocity_rad_per_s)
-    if recheck.violations:
+    # The plan was validated against its own scenario; re-check only against another one.
+    recheck = None if scenario is plan.scenario else _validate(
+        plan.q_planned, plan.t_s, scenario, start_position=plan.q_start,
+        check_fd_limits=plan.validation.fd_limits_enforced,
+        max_velocity=plan.solver.max_velocity_rad_per_s)
+    if recheck is not None and recheck.violations:
         raise ValueError("refusing to play back an offline plan that fails the check against "
                          "this scenario: " + _describe_violations(recheck.violations))
 

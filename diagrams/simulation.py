@@ -23,7 +23,7 @@ from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram, uplink_p
 from telesmooth.smoothing.metrics import smoothing_metrics, tracking_errors
 from telesmooth.smoothing.validation import as_per_joint
 
-__all__ = ["SimulationRecord", "run_metrics", "simulate", "tool_positions"]
+__all__ = ["SimulationRecord", "run_duration_s", "run_metrics", "simulate", "tool_positions"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -94,6 +94,24 @@ def tool_positions(scenario: Scenario, q) -> np.ndarray:
     return points.reshape(q.shape[:-1] + (3,))
 
 
+def run_duration_s(scenario: Scenario, recording, duration_s: float | None = None) -> float:
+    """How long to run: ``duration_s`` if given, else ``scenario.simulation_duration_s``,
+    else the recording's length + ``settle_s`` (the source replays it from t = 0), else (a
+    live operator) ``haptic.live_duration_s``.
+
+    Raises:
+        ValueError: if the duration is not positive and finite.
+    """
+    if duration_s is None:
+        duration_s = scenario.simulation_duration_s
+    if duration_s is None:
+        duration_s = (scenario.haptic.live_duration_s if recording is None else
+                      float(recording.t_s[-1] - recording.t_s[0]) + scenario.settle_s)
+    if not (np.isfinite(duration_s) and duration_s > 0.0):
+        raise ValueError(f"duration_s = {duration_s!r} must be positive and finite")
+    return float(duration_s)
+
+
 def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=None,
              progress: Callable[[str], None] | None = None) -> SimulationRecord:
     """Builds and runs the in-process chain; returns the record.
@@ -106,11 +124,7 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
         progress: Called with a one-line message about every 10 % of the run.
     """
     handles = MakeTeleoperationDiagram(scenario, meshcat=meshcat)
-    recording = handles.ground.recording
-    if duration_s is None:
-        duration_s = scenario.simulation_duration_s
-    if duration_s is None:
-        duration_s = float(recording.t_s[-1] - recording.t_s[0]) + scenario.settle_s
+    duration_s = run_duration_s(scenario, handles.ground.recording, duration_s)
     simulator = Simulator(handles.diagram)
     simulator.Initialize()
     start = time.perf_counter()
@@ -121,7 +135,7 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
         simulator.AdvanceTo(end * chunk / chunks)
         if progress is not None:
             elapsed = time.perf_counter() - start
-            progress(f"simulated {simulator.get_context().get_time():7.2f} / {duration_s:.2f} s "
+            progress(f"simulated {simulator.get_context().get_time():.1f} / {duration_s:.1f} s "
                      f"({100 * chunk // chunks:3d} %), wall {elapsed:6.1f} s")
     wall = time.perf_counter() - start
     context = simulator.get_context()

@@ -66,6 +66,8 @@ __all__ = [
     "TeleoperationHandles",
     "AddGroundStation",
     "AddOnboardRobot",
+    "AddOperatorTargets",
+    "OperatorTargets",
     "first_sample_indices",
     "uplink_packets",
 ]
@@ -112,25 +114,36 @@ def scenario_smoother_config(scenario: Scenario):
     config = scenario.smoother
     if scenario.period_mean:
         # Averaging M samples of white hand noise divides its variance by M (SPEC §5.1).
-        samples = PeriodMeanConfig(sample_period_s=scenario.haptic.period_s,
-                                   window_s=scenario.fifo.period_s).num_samples
+        samples = _period_mean_config(scenario).num_samples
         config = dataclasses.replace(config, r=config.r / samples)
     return config
 
 
-def AddGroundStation(builder: DiagramBuilder, scenario: Scenario, *,
-                     lcm: DrakeLcm | None = None) -> GroundHandles:
-    """Adds the ground station (haptic source … uplink) to ``builder``.
+@dataclasses.dataclass(frozen=True)
+class OperatorTargets:
+    """Stages 1-2 (and the FIFO's sampling option): what the 4 Hz stages sample."""
 
-    The haptic source is the scenario's recording, or an LCM subscription to
-    TELEOP_HAPTIC_COMMAND when ``scenario.haptic.source == "lcm"`` (needs ``lcm``).
+    haptic: object
+    inverse_kinematics: InverseKinematicsSystem
+    period_mean: PeriodMean | None
+    q_sampled: object   # output port: the IK target, or its period mean
+
+
+def _period_mean_config(scenario: Scenario) -> PeriodMeanConfig:
+    return PeriodMeanConfig(sample_period_s=scenario.haptic.period_s,
+                            window_s=scenario.fifo.period_s)
+
+
+def AddOperatorTargets(builder: DiagramBuilder, scenario: Scenario, *, recording,
+                       initial_position_rad, lcm: DrakeLcm | None = None) -> OperatorTargets:
+    """Adds the haptic source (or live LCM receiver), the inverse kinematics and, with
+    ``scenario.period_mean``, the period mean; ``q_sampled`` is the port the FIFO samples.
+
+    Shared by the ground station and the offline planner, so both see the same targets.
     """
     arm = scenario.arm_description
-    recording = make_haptic_recording(scenario)
-    q0 = initial_position(scenario, recording)
-    n = arm.num_joints
-
-    # Stage 1: the operator's hand (recorded, synthetic, or a live device over LCM).
+    q0 = initial_position_rad
+    # The operator's hand: recorded, synthetic, or a live device over LCM.
     if recording is not None:
         haptic = builder.AddNamedSystem("haptic_source", HapticSource(
             recording, HapticSourceConfig(period_s=scenario.haptic.period_s)))
@@ -147,11 +160,39 @@ def AddGroundStation(builder: DiagramBuilder, scenario: Scenario, *,
             initial_pose=live_pose))
         builder.Connect(subscriber.get_output_port(), haptic.get_lcm_message_input_port())
 
-    # Stage 2: inverse kinematics (the task plan manager), 100 Hz.
+    # Inverse kinematics, at the haptic rate.
     ik = builder.AddNamedSystem("inverse_kinematics", InverseKinematicsSystem(
         scenario.inverse_kinematics, arm=arm, initial_position_rad=q0))
     builder.Connect(haptic.get_pose_desired_output_port(), ik.get_input_port(0))
     builder.Connect(haptic.get_enable_output_port(), ik.get_input_port(1))
+
+    period_mean = None
+    q_sampled = ik.get_output_port(0)
+    if scenario.period_mean:
+        period_mean = builder.AddNamedSystem("period_mean", PeriodMean(
+            _period_mean_config(scenario), num_joints=arm.num_joints, initial_position_rad=q0))
+        builder.Connect(ik.get_output_port(0), period_mean.get_q_target_input_port())
+        q_sampled = period_mean.get_q_mean_output_port()
+    return OperatorTargets(haptic=haptic, inverse_kinematics=ik, period_mean=period_mean,
+                           q_sampled=q_sampled)
+
+
+def AddGroundStation(builder: DiagramBuilder, scenario: Scenario, *,
+                     lcm: DrakeLcm | None = None) -> GroundHandles:
+    """Adds the ground station (haptic source … uplink) to ``builder``.
+
+    The haptic source is the scenario's recording, or an LCM subscription to
+    TELEOP_HAPTIC_COMMAND when ``scenario.haptic.source == "lcm"`` (needs ``lcm``).
+    """
+    arm = scenario.arm_description
+    recording = make_haptic_recording(scenario)
+    q0 = initial_position(scenario, recording)
+    n = arm.num_joints
+
+    # Stages 1-2: the operator's hand and the inverse kinematics (the task plan manager).
+    operator = AddOperatorTargets(builder, scenario, recording=recording,
+                                  initial_position_rad=q0, lcm=lcm)
+    haptic, ik = operator.haptic, operator.inverse_kinematics
 
     # Stage 3: the pre-simulator's collision check on the newest (undelayed) target.
     checker = builder.AddNamedSystem("collision_checker", CollisionChecker(
@@ -161,16 +202,7 @@ def AddGroundStation(builder: DiagramBuilder, scenario: Scenario, *,
     # Stage 4: the 0.75 s FIFO, sampling the latest target or the period mean.
     fifo = builder.AddNamedSystem("delay_fifo", DelayFifo(
         scenario.fifo, num_joints=n, initial_position_rad=q0))
-    period_mean = None
-    if scenario.period_mean:
-        period_mean = builder.AddNamedSystem("period_mean", PeriodMean(
-            PeriodMeanConfig(sample_period_s=scenario.haptic.period_s,
-                             window_s=scenario.fifo.period_s),
-            num_joints=n, initial_position_rad=q0))
-        builder.Connect(ik.get_output_port(0), period_mean.get_q_target_input_port())
-        builder.Connect(period_mean.get_q_mean_output_port(), fifo.get_q_target_input_port())
-    else:
-        builder.Connect(ik.get_output_port(0), fifo.get_q_target_input_port())
+    builder.Connect(operator.q_sampled, fifo.get_q_target_input_port())
     builder.Connect(checker.GetOutputPort("collision_detected"),
                     fifo.get_collision_detected_input_port())
     builder.Connect(haptic.get_enable_output_port(), fifo.get_enable_input_port())
@@ -191,7 +223,7 @@ def AddGroundStation(builder: DiagramBuilder, scenario: Scenario, *,
 
     return GroundHandles(
         haptic=haptic, inverse_kinematics=ik, collision_checker=checker,
-        period_mean=period_mean, fifo=fifo, smoother=smoother, uplink=uplink,
+        period_mean=operator.period_mean, fifo=fifo, smoother=smoother, uplink=uplink,
         recording=recording, initial_position_rad=q0, joint_names=arm.joint_names)
 
 

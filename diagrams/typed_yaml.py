@@ -17,7 +17,7 @@ from collections.abc import Mapping
 
 from pydrake.common.yaml import yaml_load_data
 
-__all__ = ["config_from_data", "config_to_data", "load_yaml_text", "merge_data"]
+__all__ = ["config_from_data", "load_yaml_text", "merge_data"]
 
 
 def load_yaml_text(text: str) -> dict:
@@ -38,18 +38,6 @@ def merge_data(base, override):
             merged[key] = merge_data(base[key], value) if key in base else value
         return merged
     return override
-
-
-def config_to_data(config):
-    """A dataclass (tree) as plain YAML-able data (tuples as lists)."""
-    if dataclasses.is_dataclass(config):
-        return {f.name: config_to_data(getattr(config, f.name))
-                for f in dataclasses.fields(config)}
-    if isinstance(config, (tuple, list)):
-        return [config_to_data(v) for v in config]
-    if isinstance(config, Mapping):
-        return {k: config_to_data(v) for k, v in config.items()}
-    return config
 
 
 def _convert(value, hint, path: str):

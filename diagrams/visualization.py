@@ -34,7 +34,6 @@ from pydrake.geometry import (
     Role,
 )
 from pydrake.math import RigidTransform
-from pydrake.systems.analysis import Simulator
 
 from telesmooth.arms.workspace import Workspace
 
@@ -220,8 +219,8 @@ def record_meshcat_html(scenario, out_path, *, duration_s: float | None = None,
         duration_s: Simulated time, s; None = ``scenario.simulation_duration_s``, else the
             operator recording's length + ``scenario.settle_s``.
         port: Meshcat port on localhost; None = the first free port from 7000.
-        progress: Called with a one-line status message at each stage and every 5 simulated
-            seconds.
+        progress: Called with a one-line status message at each stage and every 10 % of the
+            run.
 
     Returns:
         Figures of the run: ``html_path``, ``html_bytes``, ``simulated_time_s``,
@@ -232,60 +231,57 @@ def record_meshcat_html(scenario, out_path, *, duration_s: float | None = None,
         ValueError: if ``duration_s`` is not positive, or the scenario has no recording and
             no ``simulation_duration_s``.
     """
-    from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram
+    from telesmooth.diagrams.scenario import make_haptic_recording
+    from telesmooth.diagrams.simulation import simulate
 
     report = progress or (lambda message: None)
     start = time.perf_counter()
-    meshcat = local_meshcat(port)
-    report(f"meshcat on {meshcat.web_url()}; building the diagram")
-    handles = MakeTeleoperationDiagram(scenario, meshcat=meshcat)
-    if duration_s is None:
-        duration_s = scenario.simulation_duration_s
-    if duration_s is None:
-        recording = handles.ground.recording
-        if recording is None:
-            raise ValueError("the scenario has no haptic recording; give duration_s")
-        duration_s = float(recording.t_s[-1]) + scenario.settle_s
-    if not (np.isfinite(duration_s) and duration_s > 0.0):
-        raise ValueError(f"duration_s = {duration_s!r} must be positive and finite")
-    draw_workspace(meshcat, scenario.workspace_or_default)
-    tool_points = commanded_tool_points(handles.ground.recording)
-    if tool_points is not None and tool_points.shape[1] >= 2:
-        draw_tool_path(meshcat, TOOL_PATH_PATH, tool_points)
+    meshcat = start_meshcat_recording(scenario, make_haptic_recording(scenario), port=port)
+    report(f"meshcat on {meshcat.web_url()}; simulating")
+    record = simulate(scenario, duration_s=duration_s, meshcat=meshcat, progress=report)
+    saved = save_meshcat_recording(meshcat, out_path, record.duration_s)
+    report(f"wrote {saved['html_path']} ({saved['html_bytes'] / 1e6:.2f} MB)")
+    return {
+        **saved,
+        "simulated_time_s": record.duration_s,
+        "simulation_wall_time_s": record.wall_time_s,
+        "wall_time_s": time.perf_counter() - start,
+        "meshcat_url": meshcat.web_url(),
+    }
 
-    simulator = Simulator(handles.diagram)
-    # Only the recording receives the visualizer's transforms: the live scene keeps the
-    # initial pose and the (large) per-frame websocket traffic is skipped.
+
+def start_meshcat_recording(scenario, recording, *, port: int | None = None):
+    """A localhost Meshcat with the workspace and the commanded tool path drawn, recording.
+
+    Pass it to ``simulate(..., meshcat=...)`` (or ``MakeTeleoperationDiagram``), then save
+    the replay with :func:`save_meshcat_recording`. Only the recording receives the
+    visualizer's transforms (the live scene keeps the initial pose), which skips the large
+    per-frame websocket traffic.
+    """
+    meshcat = local_meshcat(port)
+    draw_workspace(meshcat, scenario.workspace_or_default)
+    tool_points = commanded_tool_points(recording)
+    if tool_points is not None:
+        draw_tool_path(meshcat, TOOL_PATH_PATH, tool_points)
     meshcat.StartRecording(frames_per_second=FRAMES_PER_SECOND,
                            set_visualizations_while_recording=False)
-    simulate_start = time.perf_counter()
-    simulator.Initialize()
-    chunk_s = 5.0
-    t = 0.0
-    while t < duration_s:
-        t = min(t + chunk_s, duration_s)
-        simulator.AdvanceTo(t)
-        report(f"simulated {t:.1f} / {duration_s:.1f} s")
-    simulation_wall_s = time.perf_counter() - simulate_start
+    return meshcat
+
+
+def save_meshcat_recording(meshcat, out_path, duration_s: float) -> dict:
+    """Stops and publishes the recording; writes ``meshcat.StaticHtml()`` to ``out_path``.
+
+    Returns ``html_path``, ``html_bytes`` and ``frames`` (animation frames over
+    [0, duration_s]).
+    """
     meshcat.StopRecording()
     meshcat.PublishRecording()
     animation = meshcat.get_mutable_recording()
-    frames = animation.frame(simulator.get_context().get_time()) - animation.frame(0.0) + 1
-
+    frames = animation.frame(duration_s) - animation.frame(0.0) + 1
     out = Path(out_path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    html = meshcat.StaticHtml()
-    out.write_text(html, encoding="utf-8")
-    report(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB)")
-    return {
-        "html_path": str(out),
-        "html_bytes": out.stat().st_size,
-        "simulated_time_s": float(simulator.get_context().get_time()),
-        "simulation_wall_time_s": simulation_wall_s,
-        "wall_time_s": time.perf_counter() - start,
-        "frames": int(frames),
-        "meshcat_url": meshcat.web_url(),
-    }
+    out.write_text(meshcat.StaticHtml(), encoding="utf-8")
+    return {"html_path": str(out), "html_bytes": out.stat().st_size, "frames": int(frames)}
 
 
 def diagram_svg(diagram, *, max_depth: int | None = 1) -> str:

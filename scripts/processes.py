@@ -55,14 +55,12 @@ def run_ground(scenario, *, lcm_url: str, duration_s: float | None, realtime: fl
     from pydrake.lcm import DrakeLcm
     from pydrake.systems.analysis import Simulator
 
+    from telesmooth.diagrams.simulation import run_duration_s
     from telesmooth.diagrams.teleoperation import MakeGroundDiagram, uplink_packets
 
     lcm = DrakeLcm(_check_url(lcm_url))
     handles = MakeGroundDiagram(scenario, lcm=lcm)
-    recording = handles.ground.recording
-    if duration_s is None:
-        duration_s = (scenario.haptic.live_duration_s if recording is None
-                      else float(recording.t_s[-1]) + scenario.settle_s)
+    duration_s = run_duration_s(scenario, handles.ground.recording, duration_s)
     _log(f"ground: publishing on {lcm_url} for {duration_s:.2f} s")
     simulator = Simulator(handles.diagram)
     _advance(simulator, duration_s, realtime, "ground")

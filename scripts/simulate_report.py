@@ -208,15 +208,15 @@ def write_simulation_report(out_dir, scenario, *, duration_s=None, meshcat_html=
     out.mkdir(parents=True, exist_ok=True)
     meshcat = None
     if meshcat_html:
-        from pydrake.geometry import Meshcat, MeshcatParams
+        from telesmooth.diagrams.scenario import make_haptic_recording
+        from telesmooth.diagrams.visualization import start_meshcat_recording
 
-        meshcat = Meshcat(MeshcatParams(host="localhost"))
-        meshcat.StartRecording(frames_per_second=30.0, set_visualizations_while_recording=False)
+        meshcat = start_meshcat_recording(scenario, make_haptic_recording(scenario))
     record = simulate(scenario, duration_s=duration_s, meshcat=meshcat, progress=progress)
     if meshcat is not None:
-        meshcat.StopRecording()
-        meshcat.PublishRecording()
-        (out / "run.html").write_text(meshcat.StaticHtml())
+        from telesmooth.diagrams.visualization import save_meshcat_recording
+
+        save_meshcat_recording(meshcat, out / "run.html", record.duration_s)
     metrics = run_metrics(record)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     _write_tables(out, record)
