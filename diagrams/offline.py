@@ -58,6 +58,7 @@ from telesmooth.systems.flexible_arm import FlexibleJointArm
 from telesmooth.systems.uplink import Uplink
 
 __all__ = [
+    "AddPathPlayback",
     "MakeOfflinePlaybackDiagram",
     "OfflinePlan",
     "OfflinePlaybackHandles",
@@ -67,8 +68,10 @@ __all__ = [
     "ValidationReport",
     "VIOLATION_KINDS",
     "Violation",
+    "copy_logs",
     "joint_targets_at_uplink_rate",
     "plan_offline",
+    "recording_ticks",
     "run_offline",
     "validate_joint_path",
 ]
@@ -256,6 +259,14 @@ def _describe_violations(violations) -> str:
 # -- planning ---------------------------------------------------------------------------------
 
 
+def recording_ticks(scenario: Scenario, recording) -> int:
+    """Uplink ticks that cover a recording: ceil((T_rec + p_haptic) / Δt) + 1, so the last one
+    samples the IK target of the recording's last pose."""
+    duration = float(recording.t_s[-1] - recording.t_s[0])
+    return math.ceil((duration + scenario.haptic.period_s) / scenario.uplink.period_s
+                     - _TICK_INDEX_EPSILON) + 1
+
+
 def joint_targets_at_uplink_rate(scenario: Scenario, *, num_ticks: int | None = None):
     """Runs the scenario's recording through the ground station's IK; one sample per tick.
 
@@ -284,9 +295,8 @@ def joint_targets_at_uplink_rate(scenario: Scenario, *, num_ticks: int | None = 
     q0 = initial_position(scenario, recording)
     haptic_period = scenario.haptic.period_s
     tick = scenario.uplink.period_s
-    duration = float(recording.t_s[-1] - recording.t_s[0])
     if num_ticks is None:
-        num_ticks = math.ceil((duration + haptic_period) / tick - _TICK_INDEX_EPSILON) + 1
+        num_ticks = recording_ticks(scenario, recording)
     if isinstance(num_ticks, bool) or not isinstance(num_ticks, (int, np.integer)) \
             or num_ticks < 2:
         raise ValueError(f"num_ticks = {num_ticks!r} must be an integer >= 2")
@@ -623,6 +633,49 @@ class OfflinePlaybackHandles:
     duration_s: float
 
 
+def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q_start,
+                    states=None):
+    """Adds a 4 Hz joint path → the scenario's Uplink → the onboard robot, with loggers.
+
+    No check is made here: callers that command a real or a safety-relevant plant validate
+    the path first (:func:`MakeOfflinePlaybackDiagram` does). Row k of ``positions`` is
+    packet k, sent at t_k = k·Δt; the uplink and the robot start at rest at ``q_start``.
+
+    Args:
+        builder: The builder to add to.
+        scenario: The uplink period, arm and onboard settings.
+        positions: The path, rad, (N, J).
+        q_start: The robot's start pose, rad, (J,).
+        states: Optional [q, q̇, q̈, q⃛] per row, (N, J, 4), sent with the packets.
+
+    Returns:
+        (source, uplink, robot, logs): ``logs`` as :class:`OfflinePlaybackHandles`.
+    """
+    arm = scenario.arm_description
+    period = scenario.uplink.period_s
+    # Stage 1: the path, one row per uplink tick.
+    source = builder.AddNamedSystem("planned_path_source", PlannedPathSource(
+        positions, period_s=period, states=states))
+    # Stage 2: the same 4 Hz uplink as the online chain, starting at the committed pose.
+    uplink = builder.AddNamedSystem("uplink", Uplink(
+        scenario.uplink, num_joints=arm.num_joints, initial_position_rad=q_start))
+    builder.Connect(source.get_q_planned_output_port(), uplink.get_q_smoothed_input_port())
+    builder.Connect(source.get_state_planned_output_port(),
+                    uplink.get_state_smoothed_input_port())
+    # Stage 3: the onboard robot, at rest at the committed pose.
+    robot = AddOnboardRobot(builder, scenario, initial_position_rad=q_start)
+    builder.Connect(uplink.get_q_sent_output_port(), robot.GetInputPort("q_commanded"))
+    logs = {
+        "sequence_number": LogVectorOutput(uplink.get_sequence_number_output_port(), builder,
+                                           period),
+        "send_time": LogVectorOutput(uplink.get_send_time_output_port(), builder, period),
+        "q_sent": LogVectorOutput(uplink.get_q_sent_output_port(), builder, period),
+        "state_sent": LogVectorOutput(uplink.get_state_sent_output_port(), builder, period),
+    }
+    logs.update(add_onboard_loggers(builder, robot, scenario.onboard.tracker.period_s))
+    return source, uplink, robot, logs
+
+
 def MakeOfflinePlaybackDiagram(scenario: Scenario, plan: OfflinePlan) -> OfflinePlaybackHandles:
     """Playback of a valid plan: 4 Hz planned-path source → Uplink → onboard robot.
 
@@ -656,26 +709,8 @@ def MakeOfflinePlaybackDiagram(scenario: Scenario, plan: OfflinePlan) -> Offline
                          "this scenario: " + _describe_violations(recheck.violations))
 
     builder = DiagramBuilder()
-    # Stage 1: the planned, validated path, one row per uplink tick.
-    source = builder.AddNamedSystem("planned_path_source", PlannedPathSource(
-        plan.q_planned, period_s=period, states=plan.states_planned))
-    # Stage 2: the same 4 Hz uplink as the online chain, starting at the committed pose.
-    uplink = builder.AddNamedSystem("uplink", Uplink(
-        scenario.uplink, num_joints=arm.num_joints, initial_position_rad=plan.q_start))
-    builder.Connect(source.get_q_planned_output_port(), uplink.get_q_smoothed_input_port())
-    builder.Connect(source.get_state_planned_output_port(),
-                    uplink.get_state_smoothed_input_port())
-    # Stage 3: the onboard robot, at rest at the committed pose.
-    robot = AddOnboardRobot(builder, scenario, initial_position_rad=plan.q_start)
-    builder.Connect(uplink.get_q_sent_output_port(), robot.GetInputPort("q_commanded"))
-    logs = {
-        "sequence_number": LogVectorOutput(uplink.get_sequence_number_output_port(), builder,
-                                           period),
-        "send_time": LogVectorOutput(uplink.get_send_time_output_port(), builder, period),
-        "q_sent": LogVectorOutput(uplink.get_q_sent_output_port(), builder, period),
-        "state_sent": LogVectorOutput(uplink.get_state_sent_output_port(), builder, period),
-    }
-    logs.update(add_onboard_loggers(builder, robot, scenario.onboard.tracker.period_s))
+    source, uplink, robot, logs = AddPathPlayback(
+        builder, scenario, plan.q_planned, states=plan.states_planned, q_start=plan.q_start)
     diagram = builder.Build()
     diagram.set_name("offline_playback")
     last_packet = float(plan.t_s[-1])
@@ -707,9 +742,13 @@ def run_offline(scenario: Scenario, *, constraint: str = "trajectory", max_veloc
     handles = MakeOfflinePlaybackDiagram(scenario, plan)
     simulator = Simulator(handles.diagram)
     simulator.AdvanceTo(handles.duration_s if duration_s is None else float(duration_s))
-    context = simulator.get_context()
-    logs = {}
-    for name, logger in handles.logs.items():
-        log = logger.FindLog(context)
-        logs[name] = SignalLog(t_s=log.sample_times().copy(), values=log.data().T.copy())
-    return plan, logs
+    return plan, copy_logs(handles.logs, simulator.get_context())
+
+
+def copy_logs(loggers: dict, root_context) -> dict:
+    """Copies each VectorLogSink's log (name → :class:`SignalLog`) out of a root context."""
+    copies = {}
+    for name, logger in loggers.items():
+        log = logger.FindLog(root_context)
+        copies[name] = SignalLog(t_s=log.sample_times().copy(), values=log.data().T.copy())
+    return copies

@@ -23,7 +23,8 @@ from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram, uplink_p
 from telesmooth.smoothing.metrics import smoothing_metrics, tracking_errors
 from telesmooth.smoothing.validation import as_per_joint
 
-__all__ = ["SimulationRecord", "run_duration_s", "run_metrics", "simulate", "tool_positions"]
+__all__ = ["SimulationRecord", "run_duration_s", "run_metrics", "sample_at", "simulate",
+           "tool_positions"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -171,7 +172,7 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
     )
 
 
-def _sample_at(times, values, at):
+def sample_at(times, values, at):
     """values at the last sample time <= each of ``at`` (sample-and-hold lookup)."""
     index = np.searchsorted(times, np.asarray(at) + 1e-9, side="right") - 1
     return values[np.clip(index, 0, len(times) - 1)]
@@ -198,7 +199,7 @@ def run_metrics(record: SimulationRecord) -> dict:
                          names, allow_inf=True)
     sample_times = record.packet_t_s - delay
     valid = sample_times >= 0.0
-    original = _sample_at(record.target_t_s, record.q_target, sample_times[valid])
+    original = sample_at(record.target_t_s, record.q_target, sample_times[valid])
     sent = record.q_sent[valid]
     states = record.packet_state[valid].reshape(-1, 4, n).transpose(0, 2, 1)
 
@@ -213,12 +214,12 @@ def run_metrics(record: SimulationRecord) -> dict:
         if scenario.onboard.interpolator.interpolation == "linear" else 0.0
     response_times = record.packet_t_s + ramp
     inside = response_times <= record.tracker_t_s[-1]
-    measured = _sample_at(record.tracker_t_s, record.tool_position_m, response_times[inside])
+    measured = sample_at(record.tracker_t_s, record.tool_position_m, response_times[inside])
     e_response = tracking_errors(fk(record.q_sent[inside]), measured)
     both = inside & valid
-    operator = fk(_sample_at(record.target_t_s, record.q_target, sample_times[both]))
+    operator = fk(sample_at(record.target_t_s, record.q_target, sample_times[both]))
     e_chain = tracking_errors(
-        operator, _sample_at(record.tracker_t_s, record.tool_position_m, response_times[both]))
+        operator, sample_at(record.tracker_t_s, record.tool_position_m, response_times[both]))
     deflection = record.q_link - record.q_motor
     return {
         "scenario": {"arm": scenario.arm, "haptic_source": scenario.haptic.source,

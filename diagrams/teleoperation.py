@@ -220,6 +220,7 @@ def AddGroundStation(builder: DiagramBuilder, scenario: Scenario, *,
     builder.Connect(smoother.get_state_smoothed_output_port(),
                     uplink.get_state_smoothed_input_port())
     builder.Connect(uplink.get_q_sent_output_port(), fifo.get_q_sent_input_port())
+    builder.Connect(fifo.get_holding_output_port(), uplink.get_holding_input_port())
 
     return GroundHandles(
         haptic=haptic, inverse_kinematics=ik, collision_checker=checker,
@@ -331,6 +332,7 @@ def MakeGroundDiagram(scenario: Scenario, *, lcm: DrakeLcm) -> TeleoperationHand
     builder.Connect(ground.uplink.get_sequence_number_output_port(),
                     sender.get_sequence_number_input_port())
     builder.Connect(ground.uplink.get_send_time_output_port(), sender.get_send_time_input_port())
+    builder.Connect(ground.uplink.get_holding_sent_output_port(), sender.get_holding_input_port())
     command_publisher = builder.AddNamedSystem("joint_command_publisher",
         LcmPublisherSystem.Make(TELEOP_JOINT_COMMAND, lcmt_teleop_joint_command, lcm,
                                 publish_period=period,

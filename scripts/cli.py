@@ -222,6 +222,33 @@ def run_simulate(args) -> int:
     return 0
 
 
+def _add_compare_parser(subparsers) -> None:
+    from telesmooth.diagrams.comparison import COMPARE_METHODS
+
+    p = subparsers.add_parser(
+        "compare",
+        help="every smoothing method on one scenario through the same plant (paper Table 2)",
+    )
+    _add_scenario_arguments(p)
+    p.add_argument("--out", type=Path, default=Path("out/compare"), help="report folder")
+    p.add_argument("--methods", default=",".join(COMPARE_METHODS),
+                   help="comma list of methods (default all: " + ",".join(COMPARE_METHODS)
+                   + "); original is always run, it is the reference of P")
+    p.set_defaults(handler=run_compare)
+
+
+def run_compare(args) -> int:
+    from telesmooth.scripts.compare_report import write_comparison_report
+
+    scenario = _load_scenario(args)
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    if not methods:
+        raise ValueError(f"--methods = {args.methods!r} names no method")
+    report = write_comparison_report(args.out, scenario, methods=methods)
+    print(f"report: {report}")
+    return 0
+
+
 def _add_process_parsers(subparsers) -> None:
     from telesmooth.diagrams.channels import DEFAULT_LCM_URL
 
@@ -267,6 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_smooth_parser(subparsers)
     _add_demo_parser(subparsers)
     _add_simulate_parser(subparsers)
+    _add_compare_parser(subparsers)
     _add_process_parsers(subparsers)
     return parser
 

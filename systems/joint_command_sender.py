@@ -30,7 +30,7 @@ class JointCommandSender(LeafSystem):
     - ``sequence_number``, ``send_time``: the packet's number and time, s (Uplink outputs).
     - ``state_sent``: [q, q̇, q̈, q⃛] of the packet (Uplink ``state_sent``), (4J,); gives the
       velocity field (zero when unconnected).
-    - ``holding``: 1 while the FIFO holds after a collision → ``mode = MODE_HOLD``.
+    - ``holding``: 1 if the packet is a hold (Uplink ``holding_sent``) → ``mode = MODE_HOLD``.
     - ``lcm_message``: ``lcmt_teleop_joint_command`` with utime = send_time in µs,
       sample_utime = utime − ``delay_s``, the joint names, positions and velocities.
 

@@ -40,12 +40,14 @@ class Uplink(LeafSystem):
         input_ports:
         - q_smoothed
         - state_smoothed (optional)
+        - holding (optional)
         output_ports:
         - q_sent
         - state_sent
         - sequence_number
         - send_time
         - command_rejected
+        - holding_sent
 
     Ports (J = num_joints):
 
@@ -58,11 +60,17 @@ class Uplink(LeafSystem):
       −1 before the first tick.
     - ``send_time``: t_k, when the last packet left (simulation clock), s, (1,); −1 before the
       first.
+    - ``holding``: 1 while the ground station holds the robot (the FIFO's ``holding``),
+      sampled with the command, (1,); unconnected = never.
     - ``command_rejected``: 1 if the last packet re-sent the previous command because the
       input was not finite, (1,).
+    - ``holding_sent``: 1 if the last packet is a hold: ``holding`` was 1 at its tick, or its
+      command was rejected (the previous one re-sent), (1,). The LCM sender marks it
+      ``MODE_HOLD``.
 
     Update at t_k = k·period_s (offset 0): q_sent ← q_smoothed(t_k) if finite, else
-    q_sent (unchanged, flag raised); sequence ← sequence + 1; send_time ← t_k (the event time). All outputs are
+    q_sent (unchanged, flag raised); sequence ← sequence + 1; send_time ← t_k (the event time);
+    holding_sent ← holding(t_k) or rejected. All outputs are
     state outputs: a tick at t_k is visible just after t_k (Drake's publish-before-update
     convention means a logger sampling exactly at t_k still sees packet k−1). Before the first
     tick q_sent is ``initial_position_rad``.
@@ -86,10 +94,11 @@ class Uplink(LeafSystem):
         self._num_joints = n
         self._q_smoothed_input = self.DeclareVectorInputPort("q_smoothed", n)
         self._state_smoothed_input = self.DeclareVectorInputPort("state_smoothed", 4 * n)
+        self._holding_input = self.DeclareVectorInputPort("holding", 1)
         # [q_sent, q̇, q̈, q⃛] of the last packet; q_sent is its first J entries.
         self._state_sent_state = self.DeclareDiscreteState(np.concatenate([q0, np.zeros(3 * n)]))
-        # [sequence number, send time, rejected flag] of the last packet.
-        self._packet_state = self.DeclareDiscreteState([-1.0, -1.0, 0.0])
+        # [sequence number, send time, rejected flag, hold flag] of the last packet.
+        self._packet_state = self.DeclareDiscreteState([-1.0, -1.0, 0.0, 0.0])
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update_packet)
         # A forced update runs the same tick on demand (CalcForcedDiscreteVariableUpdate).
         self.DeclareForcedDiscreteUpdateEvent(self._update_packet)
@@ -111,6 +120,8 @@ class Uplink(LeafSystem):
             "send_time", 1, packet_field(1), prerequisites_of_calc=state_only)
         self._rejected_output = self.DeclareVectorOutputPort(
             "command_rejected", 1, packet_field(2), prerequisites_of_calc=state_only)
+        self._holding_sent_output = self.DeclareVectorOutputPort(
+            "holding_sent", 1, packet_field(3), prerequisites_of_calc=state_only)
 
     @property
     def config(self) -> UplinkConfig:
@@ -121,6 +132,12 @@ class Uplink(LeafSystem):
 
     def get_state_smoothed_input_port(self):
         return self._state_smoothed_input
+
+    def get_holding_input_port(self):
+        return self._holding_input
+
+    def get_holding_sent_output_port(self):
+        return self._holding_sent_output
 
     def get_state_sent_output_port(self):
         return self._state_sent_output
@@ -149,5 +166,8 @@ class Uplink(LeafSystem):
         if valid:   # otherwise the previous packet's command is sent again
             discrete_state.get_mutable_vector(self._state_sent_state).SetFromVector(
                 np.concatenate([command, derivatives]))
+        holding = (self._holding_input.HasValue(context)
+                   and bool(self._holding_input.Eval(context)[0] > 0.5))
         discrete_state.get_mutable_vector(self._packet_state).SetFromVector(
-            [sequence, context.get_time(), 0.0 if valid else 1.0])
+            [sequence, context.get_time(), 0.0 if valid else 1.0,
+             1.0 if (holding or not valid) else 0.0])

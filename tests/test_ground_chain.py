@@ -233,6 +233,21 @@ def test_uplink_holds_and_flags_a_non_finite_command():
         np.testing.assert_array_equal(dut.get_q_sent_output_port().Eval(context), expected)
 
 
+def test_uplink_marks_hold_packets():
+    dut = Uplink(UplinkConfig(), num_joints=1, initial_position_rad=[0.0])
+    context = dut.CreateDefaultContext()
+    # (command, ground-station hold flag) → packet marked as a hold?
+    cases = (([0.1], None, 0.0), ([0.2], 0.0, 0.0), ([0.2], 1.0, 1.0), ([np.nan], 0.0, 1.0),
+             ([0.3], 0.0, 0.0))
+    for k, (command, holding, expected) in enumerate(cases):
+        context.SetTime(k * DT)
+        dut.get_q_smoothed_input_port().FixValue(context, command)
+        if holding is not None:
+            dut.get_holding_input_port().FixValue(context, [holding])
+        dut.CalcForcedDiscreteVariableUpdate(context, context.get_mutable_discrete_state())
+        assert dut.get_holding_sent_output_port().Eval(context)[0] == expected, k
+
+
 def test_uplink_holds_between_ticks_in_a_simulator():
     builder = DiagramBuilder()
     source = builder.AddSystem(TickTable(np.arange(8.0)[:, None], period_s=0.1))

@@ -1,0 +1,343 @@
+"""The paper's Table 2 for one scenario: every smoothing method through the same plant.
+
+Pipeline (SPEC §6/§7):
+
+    recorded operator session ─▶ ground-station IK ─▶ one joint sample z_k per uplink tick
+      (exactly what the online chain's FIFO samples; :func:`joint_targets_at_uplink_rate`),
+      over the recording and ``scenario.settle_s`` more (the operator holds the last pose)
+        └─▶ each method on the same z (``smoothing.methods.smooth_recording``), same Φ, Q(σ_0),
+            r and rest start, limits of ``scenario.smoother``
+              └─▶ packet k = the estimate of sample k − d (d = L for the fixed-lag methods,
+                  else 0), the start pose before that, the last estimate held after
+                    └─▶ 4 Hz Uplink ─▶ the flexible-joint robot with its laser tracker
+                        (the same stages as the online chain and the offline playback)
+
+Every method is played through an identical plant for the same simulated time, so the response
+errors are comparable. The online chain's pass-through, BMFLS and Online-CKS modes send exactly
+the packets built here when the pre-simulator never holds (``tests/test_comparison.py`` checks
+Online-CKS against :func:`~telesmooth.diagrams.simulation.simulate`).
+
+Metrics per method (index i = operator sample, 0 ≤ i < N):
+
+* ``fd_acceleration`` / ``fd_jerk``: finite differences of the packet sequence *as the plant
+  receives it* (start pose ×3 in front, last packet ×3 after) against a_max / j_max.
+* ``position_deformation_rad``, ``velocity_deformation_rad_per_s``, ``cartesian_deformation_m``:
+  estimate of sample i against z_i (SPEC §6 Def_q, E_def).
+* e(i) = ‖FK(q̂_i) − x^A(t_{i+d} + ramp)‖: the robot's response to the packet carrying sample i,
+  with the tracker read when the interpolator has reached that packet. e_ORG is e of the
+  ``original`` run, e_SMT that of the method, P = (Σe_ORG − Σe_SMT)/Σe_ORG × 100 %.
+* ``operator_error_m``: ‖FK(z_i) − x^A(t_{i+d} + ramp)‖, the error against the operator's
+  intent (at most E_def + e_SMT by the triangle inequality).
+* ``residual_motion_m``: max ‖x^A(t) − FK(last packet)‖ once the robot has reached the packet
+  carrying the operator's last real sample (the smoother's tail and the flexible links ringing
+  after the operator stopped); ``settling_time_s``: from the operator's last sample until the
+  tool stays within :data:`SETTLED_TOLERANCE_M` of its final position (includes the method's
+  delay).
+* ``presim_violations``: samples the pre-simulator would reject (collision within the safety
+  margin, joint limits). The comparison is a simulation, so they are reported, not enforced.
+
+Method names are those of ``smooth_recording``, plus ``offline-cks-trajectory``: Offline-CKS
+with hard finite-difference limits and rest at the end (SPEC §2.6; the offline mode's default).
+Plain ``offline-cks`` is the paper's state box without a terminal constraint.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable
+
+import numpy as np
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+
+from telesmooth.arms.collision import ArmCollisionModel
+from telesmooth.diagrams.offline import (
+    AddPathPlayback,
+    copy_logs,
+    joint_targets_at_uplink_rate,
+    recording_ticks,
+    validate_joint_path,
+)
+from telesmooth.diagrams.scenario import Scenario, make_haptic_recording
+from telesmooth.diagrams.simulation import sample_at, tool_positions
+from telesmooth.diagrams.teleoperation import scenario_smoother_config
+from telesmooth.smoothing.methods import FIXED_LAG_METHODS, SmoothingSettings, smooth_recording
+from telesmooth.smoothing.metrics import (
+    finite_differences,
+    improvement_ratio,
+    limit_statistics,
+    smoothing_metrics,
+    tracking_errors,
+)
+from telesmooth.smoothing.offline import HISTORY_LENGTH
+from telesmooth.smoothing.validation import as_per_joint
+
+__all__ = [
+    "COMPARE_METHODS",
+    "Comparison",
+    "SETTLED_TOLERANCE_M",
+    "MethodRun",
+    "compare_methods",
+    "method_settings",
+]
+
+COMPARE_METHODS = ("original", "kf", "kf-predictor", "offline-ks", "offline-cks",
+                   "offline-cks-trajectory", "bmfls", "online-cks")
+"""Every method :func:`compare_methods` knows, in the order of the paper's Table 2."""
+
+_REFERENCE = "original"
+
+SETTLED_TOLERANCE_M = 1e-4
+"""The tool counts as settled once it stays within this distance of its final position, m."""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class MethodRun:
+    """One method played through the plant.
+
+    Attributes:
+        method: The name (one of :data:`COMPARE_METHODS`).
+        delay_ticks: d, packets between operator sample i and the packet carrying it.
+        estimate: q̂_i, the method's estimate of each operator sample, rad, (N, J).
+        packets: What the uplink sent at each tick t_k = k·Δt, rad, (N + d, J).
+        t_s: The times of ``packets``, s.
+        tracker_t_s, tool_position_m: The laser tracker's record, s and m, (T,), (T, 3).
+        q_link, q_motor: Link and motor angles at the tracker rate, rad, (T, J).
+        response_error_m: e(i) per operator sample, m, (N,).
+        operator_error_m: ‖FK(z_i) − x^A‖ per operator sample, m, (N,).
+        metrics: JSON-ready figures (see the module docstring).
+        timings_s: "smooth" and "simulate" wall-clock times, s.
+    """
+
+    method: str
+    delay_ticks: int
+    estimate: np.ndarray
+    packets: np.ndarray
+    t_s: np.ndarray
+    tracker_t_s: np.ndarray
+    tool_position_m: np.ndarray
+    q_link: np.ndarray
+    q_motor: np.ndarray
+    response_error_m: np.ndarray
+    operator_error_m: np.ndarray
+    metrics: dict
+    timings_s: dict
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Comparison:
+    """Every method's run on one scenario.
+
+    Attributes:
+        scenario: The scenario.
+        joint_names: Joint order, (J,).
+        period_s: Δt, s.
+        t_s: Operator sample times t_i, s, (N,).
+        q_original: z_i, the operator's samples, rad, (N, J).
+        q_start: The robot's start pose, rad, (J,).
+        duration_s: Simulated time of every run, s.
+        runs: method name → :class:`MethodRun`, in the requested order.
+    """
+
+    scenario: Scenario
+    joint_names: tuple
+    period_s: float
+    t_s: np.ndarray
+    q_original: np.ndarray
+    q_start: np.ndarray
+    duration_s: float
+    runs: dict
+
+    def table(self) -> list[dict]:
+        """One row per method with the Table 2 figures (worst joint for per-joint values)."""
+        rows = []
+        for name, run in self.runs.items():
+            m = run.metrics
+            rows.append({
+                "method": name,
+                "delay_s": run.delay_ticks * self.period_s,
+                "fd_acc_max_over_limit": max(m["fd_acceleration"]["max_over_limit"]),
+                "fd_acc_fraction_over": max(m["fd_acceleration"]["fraction_over_limit"]),
+                "fd_jerk_max_over_limit": max(m["fd_jerk"]["max_over_limit"]),
+                "fd_jerk_fraction_over": max(m["fd_jerk"]["fraction_over_limit"]),
+                "position_deformation_mean_rad": max(m["position_deformation_rad"]["mean"]),
+                "cartesian_deformation_mean_m": m["cartesian_deformation_m"]["mean"],
+                "cartesian_deformation_max_m": m["cartesian_deformation_m"]["max"],
+                "e_mean_m": m["response_error_m"]["mean"],
+                "e_max_m": m["response_error_m"]["max"],
+                "operator_error_mean_m": m["operator_error_m"]["mean"],
+                "improvement_ratio_percent": m["improvement_ratio_percent"],
+                "residual_motion_m": m["residual_motion_m"],
+                "settling_time_s": m["settling_time_s"],
+                "presim_violations": m["presim_violations"]["total"],
+            })
+        return rows
+
+
+def method_settings(scenario: Scenario, method: str) -> tuple[str, SmoothingSettings]:
+    """The ``smooth_recording`` method and settings a comparison method uses on ``scenario``.
+
+    All methods share σ_0, r (divided by the samples per period under the period mean), L,
+    a_max, j_max and the reduced-Q settings of ``scenario.smoother``.
+
+    Raises:
+        ValueError: For an unknown method.
+    """
+    if method not in COMPARE_METHODS:
+        raise ValueError(f"method = {method!r} must be one of {COMPARE_METHODS}")
+    config = scenario_smoother_config(scenario)
+    settings = SmoothingSettings(
+        max_acceleration=config.max_acceleration_rad_per_s2,
+        max_jerk=config.max_jerk_rad_per_s3, sigma=config.sigma, r=config.r, lag=config.lag,
+        fixed_lag_method=config.fixed_lag_method, reduced_q=config.reduced_q)
+    if method == "offline-cks-trajectory":
+        return "offline-cks", dataclasses.replace(settings, constraint="trajectory",
+                                                  rest_at_end=True)
+    return method, settings
+
+
+def _settle_ticks(scenario: Scenario) -> int:
+    return math.ceil(scenario.settle_s / scenario.uplink.period_s - 1e-9)
+
+
+def compare_methods(scenario: Scenario, methods=COMPARE_METHODS, *,
+                    progress: Callable[[str], None] | None = None) -> Comparison:
+    """Runs each method on the scenario's recorded session through the same plant.
+
+    Args:
+        scenario: A scenario with a recorded session (not ``haptic.source = 'lcm'``).
+        methods: Names from :data:`COMPARE_METHODS`; ``original`` is always run (it is the
+            reference of P) and comes first.
+        progress: Called with a one-line message per method.
+
+    Returns:
+        The comparison. A method that fails (e.g. Offline-CKS reports no solution) raises.
+
+    Raises:
+        ValueError: Unknown or repeated method names; a scenario without a recording.
+        RuntimeError: A method failed to produce a command sequence (the message names it).
+    """
+    methods = tuple(methods)
+    unknown = [m for m in methods if m not in COMPARE_METHODS]
+    if unknown:
+        raise ValueError(f"methods {unknown!r} are not among {COMPARE_METHODS}")
+    if len(set(methods)) != len(methods):
+        raise ValueError(f"methods = {methods!r} repeats a method")
+    methods = (_REFERENCE,) + tuple(m for m in methods if m != _REFERENCE)
+    say = progress or (lambda message: None)
+    recording = make_haptic_recording(scenario)
+    if recording is None:
+        raise ValueError("compare needs a recorded session; haptic.source = 'lcm' is a live "
+                         "device")
+
+    arm = scenario.arm_description
+    names = arm.joint_names
+    n = arm.num_joints
+    period = scenario.uplink.period_s
+    # The operator's samples, then the operator holding the last pose while the robot settles.
+    num_operator_samples = recording_ticks(scenario, recording)
+    t_s, z, q_start, _ = joint_targets_at_uplink_rate(
+        scenario, num_ticks=num_operator_samples + _settle_ticks(scenario))
+    num_samples = z.shape[0]
+    lag = scenario_smoother_config(scenario).lag
+    max_delay = lag if any(m in FIXED_LAG_METHODS for m in methods) else 0
+    ramp = (scenario.onboard.interpolator.ramp_duration_s
+            if scenario.onboard.interpolator.interpolation == "linear" else 0.0)
+    # Every run: the last packet that carries an operator sample, its ramp, and the settling.
+    duration = (num_samples - 1 + max_delay) * period + ramp + max(period, scenario.settle_s)
+    a_max = as_per_joint("max_acceleration_rad_per_s2",
+                         scenario.smoother.max_acceleration_rad_per_s2, n, names, allow_inf=True)
+    j_max = as_per_joint("max_jerk_rad_per_s3", scenario.smoother.max_jerk_rad_per_s3, n,
+                         names, allow_inf=True)
+    collision_model = ArmCollisionModel(
+        arm, scenario.workspace_or_default,
+        distance_horizon_m=scenario.collision_checker.distance_horizon_m)
+    operator_tool = tool_positions(scenario, z)
+
+    def fk(q):
+        return tool_positions(scenario, q)
+
+    runs = {}
+    for number, method in enumerate(methods, start=1):
+        started = time.perf_counter()
+        base_method, settings = method_settings(scenario, method)
+        try:
+            result = smooth_recording(z, period, base_method, settings, joint_names=names)
+        except RuntimeError as error:
+            raise RuntimeError(f"method {method!r} failed: {error}") from error
+        estimate = result.positions
+        states = result.states if result.states is not None else np.concatenate(
+            [estimate[:, :, None], np.zeros(estimate.shape + (3,))], axis=2)
+        delay = round(result.sent_delay_s / period)
+        rest = np.zeros((delay, n, 4))
+        rest[:, :, 0] = q_start
+        packet_states = np.concatenate([rest, states], axis=0)
+        packets = packet_states[:, :, 0]
+        smoothed = time.perf_counter()
+
+        builder = DiagramBuilder()
+        _, _, _, loggers = AddPathPlayback(builder, scenario, packets, states=packet_states,
+                                           q_start=q_start)
+        diagram = builder.Build()
+        diagram.set_name(f"compare_{method}")
+        simulator = Simulator(diagram)
+        simulator.AdvanceTo(duration)
+        logs = copy_logs(loggers, simulator.get_context())
+        simulated = time.perf_counter()
+
+        tracker_t = logs["position_measured"].t_s
+        tool = logs["position_measured"].values
+        response_t = (np.arange(num_samples) + delay) * period + ramp
+        measured = sample_at(tracker_t, tool, response_t)
+        e = tracking_errors(fk(estimate), measured)
+        e_operator = tracking_errors(operator_tool, measured)
+        # What the plant receives: start pose ×3, the packets, the last packet held.
+        received = np.vstack([np.tile(q_start, (HISTORY_LENGTH, 1)), packets,
+                              np.tile(packets[-1], (HISTORY_LENGTH, 1))])
+        metrics = smoothing_metrics(
+            smoothed_positions=estimate, original_positions=z, dt_s=period,
+            max_acceleration=a_max, max_jerk=j_max, smoothed_states=result.states,
+            forward_kinematics=fk, joint_names=names)
+        metrics["fd_acceleration"] = limit_statistics(finite_differences(received, period, 2),
+                                                      a_max)
+        metrics["fd_jerk"] = limit_statistics(finite_differences(received, period, 3), j_max)
+        metrics["response_error_m"] = {"mean": float(e.mean()), "max": float(e.max())}
+        metrics["operator_error_m"] = {"mean": float(e_operator.mean()),
+                                       "max": float(e_operator.max())}
+        reference = runs[_REFERENCE].response_error_m if runs else e
+        metrics["improvement_ratio_percent"] = improvement_ratio(reference, e)
+        # After the operator stops: the tool's motion about its final position, from when the
+        # packet carrying the operator's last sample has been reached.
+        distance_to_final = np.linalg.norm(tool - fk(packets[-1]), axis=-1)
+        after = tracker_t >= (num_operator_samples - 1 + delay) * period + ramp
+        metrics["residual_motion_m"] = float(distance_to_final[after].max()) \
+            if after.any() else math.nan
+        outside = np.flatnonzero(distance_to_final > SETTLED_TOLERANCE_M)
+        metrics["settling_time_s"] = (
+            0.0 if outside.size == 0 else
+            max(0.0, float(tracker_t[outside[-1]]) - (num_operator_samples - 1) * period))
+        deflection = logs["q_link"].values - logs["q_motor"].values
+        metrics["link_deflection_max_abs_rad"] = np.abs(deflection).max(axis=0).tolist()
+        violations = validate_joint_path(packets, period * np.arange(len(packets)), scenario,
+                                         start_position=q_start, check_fd_limits=False,
+                                         collision_model=collision_model)
+        kinds = {kind: sum(v.kind == kind for v in violations)
+                 for kind in ("non_finite", "joint_limit", "collision")}
+        metrics["presim_violations"] = {**kinds, "total": len(violations)}
+        metrics["delay_s"] = delay * period
+        metrics["details"] = result.details
+        timings = {"smooth": smoothed - started, "simulate": simulated - smoothed}
+        metrics["timings_s"] = timings
+        runs[method] = MethodRun(
+            method=method, delay_ticks=delay, estimate=estimate, packets=packets,
+            t_s=period * np.arange(len(packets)), tracker_t_s=tracker_t, tool_position_m=tool,
+            q_link=logs["q_link"].values, q_motor=logs["q_motor"].values, response_error_m=e,
+            operator_error_m=e_operator, metrics=metrics, timings_s=timings)
+        say(f"[{number}/{len(methods)}] {method}: smoothed in {timings['smooth']:.2f} s, "
+            f"{duration:.1f} s simulated in {timings['simulate']:.1f} s; "
+            f"P = {metrics['improvement_ratio_percent']:.1f} %")
+    return Comparison(scenario=scenario, joint_names=names, period_s=period, t_s=t_s,
+                      q_original=z, q_start=np.asarray(q_start, dtype=float).copy(),
+                      duration_s=duration, runs=runs)

@@ -1,0 +1,244 @@
+"""`telesmooth compare`: the paper's Table 2 for one scenario, every method through one plant.
+
+Output folder:
+    comparison.json  per method: every SPEC §6 figure (diagrams.comparison), the table rows,
+                     and the scenario summary
+    packets.csv      the packet each method sent at every 4 Hz tick (positions per joint)
+    table.md         the Table 2 rows alone (Markdown)
+    *.png            FD acceleration/jerk against the limits, end-effector tracks, response
+                     error over time, a summary bar chart
+    report.md        the table, how to read it, and the figures
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from telesmooth.diagrams.comparison import COMPARE_METHODS, Comparison, compare_methods
+from telesmooth.diagrams.simulation import tool_positions
+from telesmooth.smoothing.metrics import finite_differences
+from telesmooth.smoothing.offline import HISTORY_LENGTH
+from telesmooth.smoothing.validation import as_per_joint
+
+__all__ = ["table_markdown", "write_comparison_report"]
+
+
+def _log(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+_COLUMNS = (
+    ("method", "method", "{}"),
+    ("delay [s]", "delay_s", "{:.2f}"),
+    ("FD acc max/limit", "fd_acc_max_over_limit", "{:.2f}"),
+    ("FD acc over", "fd_acc_fraction_over", "{:.1%}"),
+    ("FD jerk max/limit", "fd_jerk_max_over_limit", "{:.2f}"),
+    ("FD jerk over", "fd_jerk_fraction_over", "{:.1%}"),
+    ("joint def. mean [mrad]", "position_deformation_mean_rad", "×1000{:.2f}"),
+    ("E_def mean / max [mm]", ("cartesian_deformation_mean_m", "cartesian_deformation_max_m"),
+     "×1000{:.2f} / {:.2f}"),
+    ("e mean / max [mm]", ("e_mean_m", "e_max_m"), "×1000{:.3f} / {:.3f}"),
+    ("P [%]", "improvement_ratio_percent", "{:.1f}"),
+    ("vs operator mean [mm]", "operator_error_mean_m", "×1000{:.3f}"),
+    ("residual motion [mm]", "residual_motion_m", "×1000{:.3f}"),
+    ("settling [s]", "settling_time_s", "{:.2f}"),
+    ("pre-sim violations", "presim_violations", "{}"),
+)
+
+
+def _cell(row: dict, key, fmt: str) -> str:
+    keys = key if isinstance(key, tuple) else (key,)
+    values = [row[k] for k in keys]
+    if fmt.startswith("×1000"):
+        fmt, values = fmt[len("×1000"):], [1000.0 * v for v in values]
+    if any(isinstance(v, float) and math.isnan(v) for v in values):
+        return "n/a"
+    return fmt.format(*values)
+
+
+def table_markdown(rows) -> str:
+    """The Table 2 rows (``Comparison.table()``) as a Markdown table."""
+    lines = ["| " + " | ".join(title for title, _, _ in _COLUMNS) + " |",
+             "|" + "---|" * len(_COLUMNS)]
+    for row in rows:
+        lines.append("| " + " | ".join(_cell(row, key, fmt) for _, key, fmt in _COLUMNS)
+                     + " |")
+    return "\n".join(lines)
+
+
+def _write_packets(out: Path, comparison: Comparison) -> None:
+    names = comparison.joint_names
+    runs = comparison.runs
+    length = max(len(run.packets) for run in runs.values())
+    header = ["t"] + [f"{method}:{joint}" for method in runs for joint in names]
+    with (out / "packets.csv").open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(header)
+        for k in range(length):
+            row = [repr(k * comparison.period_s)]
+            for run in runs.values():
+                # After its last packet each method's uplink keeps re-sending it.
+                row += [repr(float(v)) for v in run.packets[min(k, len(run.packets) - 1)]]
+            writer.writerow(row)
+
+
+def _write_figures(out: Path, comparison: Comparison) -> list[tuple[str, str]]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenario = comparison.scenario
+    names = comparison.joint_names
+    n = len(names)
+    period = comparison.period_s
+    runs = comparison.runs
+    figures = []
+
+    def save(fig, name, title):
+        fig.tight_layout()
+        fig.savefig(out / name, dpi=110)
+        plt.close(fig)
+        figures.append((title, name))
+
+    a_max = as_per_joint("a_max", scenario.smoother.max_acceleration_rad_per_s2, n, names,
+                         allow_inf=True)
+    j_max = as_per_joint("j_max", scenario.smoother.max_jerk_rad_per_s3, n, names,
+                         allow_inf=True)
+    fig, axes = plt.subplots(len(runs), 2, figsize=(12, 1.7 * len(runs)), sharex=True,
+                             sharey="col", squeeze=False)
+    for row, (method, run) in enumerate(runs.items()):
+        received = np.vstack([np.tile(comparison.q_start, (HISTORY_LENGTH, 1)), run.packets,
+                              np.tile(run.packets[-1], (HISTORY_LENGTH, 1))])
+        for column, order, limit, label in ((0, 2, a_max, "|FD acc| / a_max"),
+                                            (1, 3, j_max, "|FD jerk| / j_max")):
+            ax = axes[row, column]
+            values = np.abs(finite_differences(received, period, order)) / limit
+            # Row r spans received samples r … r+order; plot it at its newest packet's time.
+            t = (np.arange(values.shape[0]) + order - HISTORY_LENGTH) * period
+            for j, joint in enumerate(names):
+                ax.plot(t, values[:, j], lw=0.8, label=joint)
+            ax.axhline(1.0, color="k", ls="--", lw=0.8)
+            ax.set_ylabel(f"{method}\n{label}", fontsize=7)
+    axes[0, 0].legend(fontsize=6, ncol=min(n, 6), loc="upper right")
+    axes[-1, 0].set_xlabel("packet time [s]")
+    axes[-1, 1].set_xlabel("packet time [s]")
+    save(fig, "acceleration_jerk.png",
+         "What the plant receives: FD acceleration and jerk over their limits, per method")
+
+    operator = tool_positions(scenario, comparison.q_original)
+    plane = (0, 1) if scenario.arm == "air_bearing_arm" else (0, 2)
+    columns = min(4, len(runs))
+    rows = math.ceil(len(runs) / columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(3.4 * columns, 3.2 * rows),
+                             sharex=True, sharey=True, squeeze=False)
+    for ax in axes.flat[len(runs):]:
+        ax.set_visible(False)
+    for ax, (method, run) in zip(axes.flat, runs.items()):
+        ax.plot(operator[:, plane[0]], operator[:, plane[1]], color="0.6", lw=1.5,
+                label="operator")
+        ax.plot(run.tool_position_m[:, plane[0]], run.tool_position_m[:, plane[1]],
+                color="C3", lw=0.8, label="robot (tracker)")
+        ax.set_title(method, fontsize=9)
+        ax.set_aspect("equal", adjustable="box")
+    axes[0, 0].legend(fontsize=7)
+    for ax in axes[-1]:
+        ax.set_xlabel("xyz"[plane[0]] + " [m]")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("xyz"[plane[1]] + " [m]")
+    save(fig, "end_effector.png", "End-effector tracks: the operator and the robot per method")
+
+    fig, ax = plt.subplots(figsize=(10, 3.5))
+    t = comparison.t_s
+    for method, run in runs.items():
+        ax.plot(t, 1000 * run.response_error_m, lw=0.9, label=method)
+    ax.set_xlabel("operator sample time [s]")
+    ax.set_ylabel("e(i) = ‖FK(q̂_i) − tracker‖ [mm]")
+    ax.legend(fontsize=7, ncol=4)
+    save(fig, "response_error.png",
+         "Response error e(i) per operator sample (e_ORG for original, e_SMT otherwise)")
+
+    table = comparison.table()
+    labels = [row["method"] for row in table]
+    panels = (("E_def mean [mm]", [1000 * r["cartesian_deformation_mean_m"] for r in table]),
+              ("e mean [mm]", [1000 * r["e_mean_m"] for r in table]),
+              ("P [%]", [r["improvement_ratio_percent"] for r in table]),
+              ("FD acc max / a_max", [r["fd_acc_max_over_limit"] for r in table]),
+              ("FD jerk max / j_max", [r["fd_jerk_max_over_limit"] for r in table]))
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.0 * len(panels), 3.6))
+    for ax, (title, values) in zip(axes, panels):
+        ax.barh(range(len(labels)), values, color=[f"C{i}" for i in range(len(labels))])
+        ax.set_yticks(range(len(labels)))
+        ax.set_yticklabels(labels if ax is axes[0] else [], fontsize=7)
+        ax.invert_yaxis()
+        ax.set_title(title, fontsize=9)
+        if "limit" in title or "/" in title:
+            ax.axvline(1.0, color="k", ls="--", lw=0.8)
+    save(fig, "summary.png", "Summary per method")
+    return figures
+
+
+def _report_text(comparison: Comparison, rows, figures) -> str:
+    scenario = comparison.scenario
+    table = table_markdown(rows)
+    lines = [
+        "# telesmooth compare",
+        "",
+        f"Scenario: arm `{scenario.arm}`, operator `{scenario.haptic.source}`; "
+        f"{comparison.q_original.shape[0]} operator samples at {comparison.period_s} s "
+        f"(the recording and {scenario.settle_s} s of holding still); every method played "
+        f"through the same uplink and flexible-joint robot for {comparison.duration_s:.1f} s.",
+        "",
+        table,
+        "",
+        "How to read it (SPEC §6; definitions in `telesmooth.diagrams.comparison`):",
+        "",
+        "- FD acc/jerk: finite differences of the packets as the plant receives them (start "
+        "pose before, last packet held after), worst joint; *over* is the share of samples "
+        "above the limit.",
+        "- joint def., E_def: the method's estimate of each operator sample against the sample "
+        "(worst joint; Cartesian via forward kinematics).",
+        "- e: the robot's response error to its own commands (tracker read when the "
+        "interpolator has reached the packet); e of `original` is e_ORG. "
+        "P = (Σe_ORG − Σe_SMT)/Σe_ORG.",
+        "- vs operator: the tracker against the operator's sample, the error the user feels "
+        "(the fixed-lag methods' designed delay removed).",
+        "- residual motion / settling: the tool after the operator's last sample; settling is "
+        "the time until it stays within 0.1 mm of its final position.",
+        "- pre-sim violations: samples the pre-simulator would refuse (collision, joint "
+        "limits); reported, not enforced, in this comparison.",
+        "",
+    ]
+    for title, name in figures:
+        lines += [f"## {title}", "", f"![{title}]({name})", ""]
+    return "\n".join(lines)
+
+
+def write_comparison_report(out_dir, scenario, *, methods=COMPARE_METHODS,
+                            progress=_log) -> Path:
+    """Runs :func:`compare_methods` and writes the report folder; returns report.md's path."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    comparison = compare_methods(scenario, methods, progress=progress)
+    rows = comparison.table()
+    data = {
+        "scenario": {"arm": scenario.arm, "haptic_source": scenario.haptic.source,
+                     "period_s": comparison.period_s, "num_samples": int(comparison.t_s.size),
+                     "duration_s": comparison.duration_s,
+                     "joint_names": list(comparison.joint_names)},
+        "table": rows,
+        "methods": {name: run.metrics for name, run in comparison.runs.items()},
+    }
+    (out / "comparison.json").write_text(json.dumps(data, indent=2, default=float) + "\n")
+    (out / "table.md").write_text(table_markdown(rows) + "\n")
+    _write_packets(out, comparison)
+    figures = _write_figures(out, comparison)
+    report = out / "report.md"
+    report.write_text(_report_text(comparison, rows, figures))
+    return report

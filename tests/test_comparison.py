@@ -1,0 +1,157 @@
+"""`telesmooth compare`: every method through one plant (paper Table 2).
+
+Oracles: the Online-CKS packets equal the online chain's (the full diagram, simulated
+independently); each method's packets are its smooth_recording estimate behind its delay;
+e(i), P and the FD figures are recomputed from the raw arrays by hand.
+"""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from telesmooth.diagrams.comparison import COMPARE_METHODS, compare_methods, method_settings
+from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.simulation import simulate, tool_positions
+from telesmooth.scripts.cli import main
+from telesmooth.smoothing.methods import smooth_recording
+
+METHODS = ("original", "kf-predictor", "offline-cks-trajectory", "bmfls", "online-cks")
+
+
+@pytest.fixture(scope="module")
+def scenario():
+    return load_scenario(scenario_name="OneOfEverything")
+
+
+@pytest.fixture(scope="module")
+def comparison(scenario):
+    messages = []
+    result = compare_methods(scenario, METHODS, progress=messages.append)
+    assert len(messages) == len(METHODS)
+    assert all(f"[{i}/{len(METHODS)}]" in m for i, m in enumerate(messages, start=1))
+    return result
+
+
+def test_online_cks_sends_exactly_what_the_online_chain_sends(scenario, comparison):
+    record = simulate(scenario)
+    assert not np.any(record.holding > 0.5)          # no collision hold in this scenario
+    packets = comparison.runs["online-cks"].packets
+    count = min(len(packets), record.q_sent.shape[0])
+    assert count >= 30
+    np.testing.assert_allclose(packets[:count], record.q_sent[:count], rtol=0, atol=1e-12)
+
+
+def test_packets_are_each_estimate_behind_its_delay(scenario, comparison):
+    z = comparison.q_original
+    lag = scenario.smoother.lag
+    for name, run in comparison.runs.items():
+        base, settings = method_settings(scenario, name)
+        expected = smooth_recording(z, comparison.period_s, base, settings,
+                                    joint_names=comparison.joint_names).positions
+        delay = lag if name in ("bmfls", "online-cks") else 0
+        assert run.delay_ticks == delay, name
+        np.testing.assert_allclose(run.packets[delay:], expected, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(run.packets[:delay],
+                                      np.tile(comparison.q_start, (delay, 1)))
+    np.testing.assert_array_equal(comparison.runs["original"].packets, z)
+
+
+def test_response_errors_and_improvement_ratio_recomputed_by_hand(scenario, comparison):
+    ramp = 0.0     # OneOfEverything commands the robot with a zero-order hold
+    assert scenario.onboard.interpolator.interpolation == "zoh"
+    period = comparison.period_s
+    sums = {}
+    for name, run in comparison.runs.items():
+        errors = []
+        for i, q in enumerate(run.estimate):
+            when = (i + run.delay_ticks) * period + ramp
+            row = max(k for k, t in enumerate(run.tracker_t_s) if t <= when + 1e-9)
+            commanded = tool_positions(scenario, q[None, :])[0]
+            errors.append(np.linalg.norm(commanded - run.tool_position_m[row]))
+        np.testing.assert_allclose(run.response_error_m, errors, rtol=1e-12, atol=1e-15)
+        sums[name] = sum(errors)
+    for name, run in comparison.runs.items():
+        expected = 100.0 * (sums["original"] - sums[name]) / sums["original"]
+        assert run.metrics["improvement_ratio_percent"] == pytest.approx(expected, abs=1e-9)
+    assert comparison.runs["original"].metrics["improvement_ratio_percent"] == 0.0
+
+
+def test_fd_figures_are_of_what_the_plant_receives(scenario, comparison):
+    period = comparison.period_s
+    a_max = np.asarray(scenario.smoother.max_acceleration_rad_per_s2, dtype=float)
+    for name, run in comparison.runs.items():
+        received = np.vstack([np.tile(comparison.q_start, (3, 1)), run.packets,
+                              np.tile(run.packets[-1], (3, 1))])
+        acc = np.array([(received[k + 1] - 2 * received[k] + received[k - 1]) / period**2
+                        for k in range(1, len(received) - 1)])
+        np.testing.assert_allclose(run.metrics["fd_acceleration"]["max_over_limit"],
+                                   np.abs(acc).max(axis=0) / a_max, rtol=1e-9, err_msg=name)
+    # The hard finite-difference mode keeps its promise through the start and the held tail.
+    hard = comparison.runs["offline-cks-trajectory"].metrics
+    assert max(hard["fd_acceleration"]["max_over_limit"]) <= 1.0 + 1e-6
+    assert max(hard["fd_jerk"]["max_over_limit"]) <= 1.0 + 1e-6
+    # The one-step predictor does not (it overshoots every turn of the synthetic operator).
+    predictor = comparison.runs["kf-predictor"].metrics
+    assert max(predictor["fd_acceleration"]["max_over_limit"]) > 1.0
+
+
+def test_residual_motion_and_table_rows(scenario, comparison):
+    period = comparison.period_s
+    operator_samples = comparison.q_original.shape[0] - round(scenario.settle_s / period)
+    for name, run in comparison.runs.items():
+        final = tool_positions(scenario, run.packets[-1][None, :])[0]
+        after = run.tracker_t_s >= (operator_samples - 1 + run.delay_ticks) * period
+        expected = np.linalg.norm(run.tool_position_m[after] - final, axis=1).max()
+        assert run.metrics["residual_motion_m"] == pytest.approx(expected, rel=1e-12)
+        assert run.metrics["settling_time_s"] >= 0.0
+    rows = comparison.table()
+    assert [row["method"] for row in rows] == list(METHODS)
+    assert rows[0]["improvement_ratio_percent"] == 0.0
+    assert all(row["presim_violations"] == 0 for row in rows)
+    # Same simulated time for every method, so the errors are comparable.
+    ends = {round(run.tracker_t_s[-1], 6) for run in comparison.runs.values()}
+    assert len(ends) == 1
+
+
+def test_bad_methods_and_live_operator_are_refused(scenario):
+    with pytest.raises(ValueError, match="'smoothest'"):
+        compare_methods(scenario, ("original", "smoothest"))
+    with pytest.raises(ValueError, match="repeats"):
+        compare_methods(scenario, ("bmfls", "bmfls"))
+    live = load_scenario(scenario_text="{haptic: {source: lcm}}")
+    with pytest.raises(ValueError, match="live device"):
+        compare_methods(live, ("original",))
+    assert set(METHODS) <= set(COMPARE_METHODS)
+
+
+def test_cli_writes_the_report(tmp_path, capsys):
+    out = tmp_path / "compare"
+    code = main(["compare", "--scenario-name", "OneOfEverything", "--methods",
+                 "bmfls,online-cks", "--out", str(out)])
+    assert code == 0
+    assert f"report: {out / 'report.md'}" in capsys.readouterr().out
+    for name in ("report.md", "table.md", "comparison.json", "packets.csv",
+                 "acceleration_jerk.png", "end_effector.png", "response_error.png",
+                 "summary.png"):
+        assert (out / name).is_file(), name
+    data = json.loads((out / "comparison.json").read_text())
+    assert [row["method"] for row in data["table"]] == ["original", "bmfls", "online-cks"]
+    table = (out / "table.md").read_text().splitlines()
+    assert len(table) == 2 + 3 and table[2].startswith("| original | 0.00 |")
+    with open(out / "packets.csv", newline="") as handle:
+        rows = list(csv.reader(handle))
+    joints = data["scenario"]["joint_names"]
+    assert rows[0] == ["t"] + [f"{m}:{j}" for m in ("original", "bmfls", "online-cks")
+                               for j in joints]
+    # The CSV holds each method's packets (bmfls: the start pose for the first L ticks).
+    start = np.array(rows[1][1 + len(joints):1 + 2 * len(joints)], dtype=float)
+    np.testing.assert_allclose(start, np.array(rows[3][1 + len(joints):1 + 2 * len(joints)],
+                                               dtype=float))
+
+
+def test_cli_unknown_method_exits_2(tmp_path, capsys):
+    code = main(["compare", "--methods", "original,fastest", "--out", str(tmp_path / "x")])
+    assert code == 2
+    assert "'fastest'" in capsys.readouterr().err
