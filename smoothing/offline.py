@@ -50,6 +50,7 @@ from pydrake.solvers import (
     SolverOptions,
 )
 
+from telesmooth.smoothing.banded_ip import BandedIpOptions, solve_banded_qp
 from telesmooth.smoothing.kalman import GaussianPrior, rest_prior, rts_smoother
 from telesmooth.smoothing.model import (
     SCALED_TRANSITION,
@@ -59,6 +60,8 @@ from telesmooth.smoothing.model import (
 from telesmooth.smoothing.validation import as_per_joint, check_positive_int, check_trajectory
 
 OFFLINE_CONSTRAINTS = ("state", "trajectory", "both", "none")
+OFFLINE_SOLVERS = ("drake", "banded-ip")
+"""Offline-CKS solvers: the Drake MathematicalProgram (Clarabel) or the banded interior point."""
 HISTORY_LENGTH = 3
 """Committed samples in front of the trajectory in ``"trajectory"`` mode (jerk needs 3)."""
 
@@ -150,6 +153,8 @@ def solve_offline_cks(
     joint_names=None,
     tolerance: float = 1e-12,
     block_size: int = 32,
+    solver: str = "drake",
+    banded_options: BandedIpOptions | None = None,
 ) -> OfflineCksResult:
     """Solves Offline-CKS for every joint (SPEC §2.5/§2.6).
 
@@ -169,12 +174,21 @@ def solve_offline_cks(
             repeated with each looser value of TOLERANCE_LADDER down to 1e-8 and the tolerance
             reached is reported per joint.
         block_size: states per shared cost binding (a build-speed knob only).
+        solver: "drake" (default: the MathematicalProgram solved by Clarabel; a joint that
+            Clarabel cannot solve at any tolerance of the ladder is solved again by the banded
+            interior point, and ``solver_name`` says so) or "banded-ip" (only the banded
+            interior point of :mod:`telesmooth.smoothing.banded_ip`; ``tolerance`` and
+            ``block_size`` do not apply).
+        banded_options: tolerances and linear-algebra route of the banded interior point.
 
     Returns:
         OfflineCksResult; check ``is_success``. Invalid input raises ValueError.
     """
     if constraint not in OFFLINE_CONSTRAINTS:
         raise ValueError(f"constraint = {constraint!r} must be one of {OFFLINE_CONSTRAINTS}")
+    if solver not in OFFLINE_SOLVERS:
+        raise ValueError(f"solver = {solver!r} must be one of {OFFLINE_SOLVERS}")
+    banded_options = banded_options if banded_options is not None else BandedIpOptions()
     z = check_trajectory("measurements", measurements, num_joints=model.num_joints,
                          joint_names=joint_names, min_samples=2)
     num_samples, num_joints = z.shape
@@ -195,8 +209,9 @@ def solve_offline_cks(
     states = np.empty((num_samples, num_joints, 4))
     results, objective, solve_times, build_times, infeasible = [], [], [], [], []
     success = True
-    solver = ClarabelSolver()
+    clarabel = ClarabelSolver()
     options = SolverOptions()
+    solvers_used = []
     ladder = [float(tolerance)] + [tol for tol in TOLERANCE_LADDER if tol > tolerance]
     reached = []
     for j in range(num_joints):
@@ -213,58 +228,106 @@ def solve_offline_cks(
             build_times.append(0.0)
             reached.append(0.0)
             continue
-        # Solve; then check the limits on the result itself and, if the solver's tolerance
-        # left a violation above 1e-7 of a limit, tighten the limits by twice that and solve
-        # again (a back-off), so that what is returned meets the limits it promises.
-        shrink = 1.0
-        build_time = 0.0
-        for _attempt in range(4):
-            start = time.perf_counter()
-            prog, delta = _build_program(
-                z[:, j], reference[:, j], model, j, names[j], prior, q_start[j],
-                acc[j] * shrink, jerk[j] * shrink, vel[j] * shrink, constraint,
-                rest_at_end, block_size,
-            )
-            build_time += time.perf_counter() - start
-            for tol, equilibrate in ((tol, eq) for tol in ladder for eq in (True, False)):
-                for key in ("tol_gap_abs", "tol_gap_rel", "tol_feas"):
-                    options.SetOption(solver.solver_id(), key, float(tol))
-                options.SetOption(solver.solver_id(), "equilibrate_enable", equilibrate)
-                result = solver.Solve(prog, None, options)
-                if result.is_success():
-                    break
-            if not result.is_success():
-                break
-            solution = model.from_scaled(reference[:, j] + result.GetSolution(delta).T)
-            excess = _limit_excess(solution, q_start[j], dt, acc[j], jerk[j], vel[j],
-                                   constraint, rest_at_end)
-            if excess <= 1e-7:
-                break
-            shrink *= 1.0 - 2.0 * excess
-        build_times.append(build_time)
-        solve_times.append(result.get_solver_details().solve_time)
-        results.append(result.get_solution_result().name)
-        if result.is_success():
-            states[:, j, :] = solution
-            objective.append(result.get_optimal_cost())
-            reached.append(tol)
+        if solver == "drake":
+            solved = _solve_joint_drake(
+                z[:, j], reference[:, j], model, j, names[j], prior, q_start[j], acc[j],
+                jerk[j], vel[j], constraint, rest_at_end, block_size, clarabel, options, ladder)
+            if solved["success"]:
+                solvers_used.append(clarabel.solver_id().name())
+                states[:, j, :] = solved["states"]
+                results.append(solved["result"])
+                objective.append(solved["objective"])
+                solve_times.append(solved["solve_time"])
+                build_times.append(solved["build_time"])
+                reached.append(solved["tolerance"])
+                continue
+            fallback = (f"{clarabel.solver_id().name()} failed ({solved['result']}), "
+                        "banded-ip fallback")
+        else:
+            fallback = None
+        # The banded interior point: requested, or Clarabel failed on this joint.
+        start = time.perf_counter()
+        problem = banded_problem(z[:, j], model, j, prior, q_start[j], acc[j], jerk[j],
+                                 vel[j], constraint, rest_at_end)
+        shift = np.array([q_start[j], 0.0, 0.0, 0.0])
+        y_rts = (reference[:, j] - shift).ravel()
+        built = time.perf_counter()
+        banded = solve_banded_qp(*problem, y_rts, banded_options)
+        finished = time.perf_counter()
+        a, c = problem[0], problem[1]
+        solvers_used.append(fallback or "banded-ip")
+        build_times.append(built - start + (solved["build_time"] if fallback else 0.0))
+        solve_times.append(finished - built)
+        if banded.converged:
+            states[:, j, :] = model.from_scaled(banded.y.reshape(num_samples, 4) + shift)
+            results.append("kSolutionFound")
+            objective.append(0.5 * float(np.sum((a @ banded.y - c) ** 2)
+                                         - np.sum((a @ y_rts - c) ** 2)))
+            reached.append(banded_options.primal_tolerance)
         else:
             success = False
             states[:, j, :] = np.nan
+            results.append(f"banded-ip: {banded.status}")
             objective.append(np.nan)
             reached.append(np.nan)
-            infeasible[-1] = tuple(result.GetInfeasibleConstraintNames(prog))
+            infeasible[-1] = solved["infeasible"] if fallback else ()
     return OfflineCksResult(
         states=states,
         is_success=success,
         solution_results=tuple(results),
-        solver_name=solver.solver_id().name(),
+        solver_name=", ".join(dict.fromkeys(solvers_used)) or (
+            clarabel.solver_id().name() if solver == "drake" else "banded-ip"),
         objective=np.array(objective),
         solve_time_s=np.array(solve_times),
         build_time_s=np.array(build_times),
         infeasible_constraints=tuple(infeasible),
         tolerance_reached=np.array(reached),
     )
+
+
+def _solve_joint_drake(z, y_ref, model, j, name, prior, q_start, acc, jerk, vel, constraint,
+                       rest_at_end, block_size, clarabel, options, ladder) -> dict:
+    """One joint with the MathematicalProgram and Clarabel (tolerance ladder, back-off)."""
+    dt = model.dt_s
+    # Solve; then check the limits on the result itself and, if the solver's tolerance left a
+    # violation above 1e-7 of a limit, tighten the limits by twice that and solve again (a
+    # back-off), so that what is returned meets the limits it promises.
+    shrink = 1.0
+    build_time = 0.0
+    solution = None
+    for _attempt in range(4):
+        start = time.perf_counter()
+        prog, delta = _build_program(z, y_ref, model, j, name, prior, q_start, acc * shrink,
+                                     jerk * shrink, vel * shrink, constraint, rest_at_end,
+                                     block_size)
+        build_time += time.perf_counter() - start
+        # Without Ruiz equilibration first: with it Clarabel has reported kSolutionFound at
+        # 1e-12 for a point 4e-4 rad from the optimum (cost 4e-6 too high, Δt = 0.1 s).
+        for tol, equilibrate in ((tol, eq) for tol in ladder for eq in (False, True)):
+            for key in ("tol_gap_abs", "tol_gap_rel", "tol_feas"):
+                options.SetOption(clarabel.solver_id(), key, float(tol))
+            options.SetOption(clarabel.solver_id(), "equilibrate_enable", equilibrate)
+            result = clarabel.Solve(prog, None, options)
+            if result.is_success():
+                break
+        if not result.is_success():
+            break
+        solution = model.from_scaled(y_ref + result.GetSolution(delta).T)
+        excess = _limit_excess(solution, q_start, dt, acc, jerk, vel, constraint, rest_at_end)
+        if excess <= 1e-7:
+            break
+        shrink *= 1.0 - 2.0 * excess
+    success = bool(result.is_success())
+    return {
+        "success": success,
+        "states": solution,
+        "result": result.get_solution_result().name,
+        "objective": result.get_optimal_cost() if success else np.nan,
+        "solve_time": result.get_solver_details().solve_time,
+        "build_time": build_time,
+        "tolerance": tol if success else np.nan,
+        "infeasible": () if success else tuple(result.GetInfeasibleConstraintNames(prog)),
+    }
 
 
 def _limit_excess(states, q_start, dt, acc, jerk, vel, constraint, rest_at_end) -> float:
@@ -357,3 +420,77 @@ def _build_program(z, y_ref, model, j, name, prior, q_start, acc, jerk, vel, con
         prog.AddBoundingBoxConstraint(target, target, delta[1:, num_samples - 1]).evaluator(
         ).set_description(f"rest_at_end_{name}")
     return prog, delta
+
+
+def banded_problem(z, model: JerkModel, joint: int, prior: GaussianPrior, q_start: float, acc,
+                   jerk, vel, constraint: str, rest_at_end: bool):
+    """One joint's Offline-CKS in the form of :func:`~telesmooth.smoothing.banded_ip.
+    solve_banded_qp`: ½‖A y − c‖² with l ≤ F y ≤ u and y[fixed] = 0.
+
+    The same objective and limits as the MathematicalProgram of :func:`solve_offline_cks`, in
+    the scaled state with every position shifted by ``q_start`` (so the committed rest history
+    is zero); the limit rows are divided by their limit (bounds ±1).
+
+    Returns:
+        (A (rows, 4N) csr, c (rows,), F (m, 4N) csr, lower (m,), upper (m,), fixed (4N,) bool).
+    """
+    z = np.asarray(z, dtype=float)
+    num_samples = z.shape[0]
+    n = 4 * num_samples
+    dt = model.dt_s
+    r = model.r[joint]
+    shift = np.array([q_start, 0.0, 0.0, 0.0])
+    rows, cols, vals, rhs = [], [], [], []
+    # Measurements: y_k[0] = z_k − q_start, unit weight.
+    rows.append(np.arange(num_samples))
+    cols.append(4 * np.arange(num_samples))
+    vals.append(np.ones(num_samples))
+    rhs.append(z - q_start)
+    next_row = num_samples
+    # Prior: C_0 (y_0 − (T x̄_0 − shift)), W_0 = C_0ᵀ C_0 = r (T P_0 T)⁻¹.
+    w0 = r * np.linalg.inv(model.cov_to_scaled(prior.cov[joint]))
+    c0 = np.linalg.cholesky(0.5 * (w0 + w0.T)).T
+    prior_rows, prior_cols = np.nonzero(np.ones((4, 4)))
+    rows.append(next_row + prior_rows)
+    cols.append(prior_cols)
+    vals.append(c0[prior_rows, prior_cols])
+    rhs.append(c0 @ (prior.mean[joint] * model.scaling - shift))
+    next_row += 4
+    # Process: C_W (y_k − Φ̃ y_{k−1}), W = r / (σ Δt⁷) Q1⁻¹ = C_Wᵀ C_W, k = 1 … N−1.
+    w = r / (model.sigma[joint] * dt**7) * UNIT_PROCESS_PRECISION
+    cw = np.linalg.cholesky(0.5 * (w + w.T)).T
+    pair = cw @ np.hstack([-SCALED_TRANSITION, np.eye(4)])            # (4, 8)
+    local_rows, local_cols = np.nonzero(np.ones((4, 8)))
+    k = np.arange(1, num_samples)[:, None]
+    rows.append((next_row + 4 * (k - 1) + local_rows[None, :]).ravel())
+    cols.append((4 * (k - 1) + local_cols[None, :]).ravel())
+    vals.append(np.tile(pair[local_rows, local_cols], num_samples - 1))
+    rhs.append(np.zeros(4 * (num_samples - 1)))
+    next_row += 4 * (num_samples - 1)
+    a = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(next_row, n))
+    c = np.concatenate(rhs)
+
+    limit_rows = []
+    if constraint in ("state", "both"):
+        for component, limit in ((2, acc * dt**2), (3, jerk * dt**3)):
+            if np.isfinite(limit):
+                limit_rows.append(sparse.csr_matrix(
+                    (np.full(num_samples, 1.0 / limit),
+                     (np.arange(num_samples), 4 * np.arange(num_samples) + component)),
+                    shape=(num_samples, n)))
+    if constraint in ("trajectory", "both"):
+        hold = HISTORY_LENGTH if rest_at_end else 0
+        spread = sparse.csr_matrix((np.ones(num_samples),
+                                    (np.arange(num_samples), 4 * np.arange(num_samples))),
+                                   shape=(num_samples, n))
+        for order, limit in ((1, vel * dt), (2, acc * dt**2), (3, jerk * dt**3)):
+            if np.isfinite(limit):
+                fd, _ = finite_difference_operator(num_samples, order, history=HISTORY_LENGTH,
+                                                   hold_at_end=hold)
+                limit_rows.append((fd @ spread) / limit)
+    f = sparse.vstack(limit_rows).tocsr() if limit_rows else sparse.csr_matrix((0, n))
+    fixed = np.zeros(n, dtype=bool)
+    if rest_at_end:
+        fixed[4 * (num_samples - 1) + 1:] = True
+    return a, c, f, -np.ones(f.shape[0]), np.ones(f.shape[0]), fixed

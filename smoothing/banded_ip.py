@@ -1,0 +1,459 @@
+"""A structure-exploiting interior-point solver for Offline-CKS (SPEC §2.3, §2.5, §2.6).
+
+Per joint the Offline-CKS problem is a least-squares objective with two-sided linear limits,
+
+    minimise ½‖A y − c‖²   subject to   l ≤ F y ≤ u,   y_v = 0 for the fixed entries v,
+
+over the scaled states y = [y_0; …; y_{N−1}] (4N values, y_k = T x_k). The rows of A are the
+measurements (y_k[0] = z_k), the prior and the whitened process terms C_W (y_k − Φ̃ y_{k−1})
+(the objective of SPEC §2.5, scaled by r). F holds, normalised by their limits so that every
+bound is ±1, either the state box rows y_k[2] / (a_max Δt²), y_k[3] / (j_max Δt³) (the paper's
+(11)) or the finite-difference rows of SPEC §2.6 on the positions, or both. ``rest_at_end``
+fixes y_{N−1}[1:4] = 0. Positions are shifted by q_start first, so the committed rest history
+contributes nothing to the rows and round-off does not grow with the joint angle.
+
+Method: Mehrotra's predictor-corrector primal-dual interior point (the ckbs affine method of
+SPEC §2.3 with a second-order corrector). Each Newton step solves
+
+    (AᵀA + Fᵀ D F) Δy = b,    D = λ_u / s_u + λ_l / s_l,
+
+whose matrix is banded: half-bandwidth 7 from the block-tridiagonal AᵀA, 12 with the third
+differences of the positions (4 consecutive samples × 4 states). Two linear-algebra routes:
+
+``"cholesky"``
+    LAPACK banded Cholesky (``scipy.linalg.cholesky_banded``), O(N·b²) per step with no Python
+    loop over samples. Accurate while AᵀA is well conditioned (Δt ≳ 0.05 s with the SPEC §8
+    σ and r: cond ≈ 5e7 at 4 Hz).
+``"qr"``
+    A sequential banded QR of the whitened rows [A; √D F] (a square-root information
+    smoother): it never forms the normal equations, so its accuracy depends on cond(A) rather
+    than cond(A)². At Δt = 0.01 s cond(AᵀA) ≈ 1e17 and the Cholesky factorisation breaks down
+    (not positive definite, or garbage), while the QR route still solves to ~1e-8. One small
+    dense QR per sample: O(N) Python steps per Newton step.
+``"auto"`` (default)
+    Cholesky when the ratio of the largest to the smallest pivot of chol(AᵀA) squared is below
+    1e12, else QR.
+
+Every joint is solved independently; failures are reported per joint, never raised.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import scipy.sparse as sparse
+from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded, solve_banded
+
+__all__ = ["BandedIpOptions", "BandedIpResult", "LINEAR_SOLVERS", "solve_banded_qp"]
+
+LINEAR_SOLVERS = ("auto", "cholesky", "qr")
+
+# ``auto`` uses Cholesky while (max pivot / min pivot)² of chol(AᵀA) stays below this.
+_CHOLESKY_CONDITION_LIMIT = 1e12
+# Fraction of the distance to the boundary a step may go.
+_STEP_FRACTION = 0.99
+# Relative round-off allowed in a limit row's value F y (see ``run``).
+_PRIMAL_ROUND_OFF = 1e-13
+
+
+@dataclasses.dataclass(frozen=True)
+class BandedIpOptions:
+    """Tolerances of the interior-point method.
+
+    Attributes:
+        primal_tolerance: max violation of a normalised row (a fraction of its limit), or
+            1e-13 of the row's terms |F||y| when that round-off floor is larger.
+        gap_tolerance: mean complementarity sᵀλ / m.
+        dual_tolerance: ‖∇ Lagrangian‖∞ relative to the size of its terms (round-off leaves
+            ~1e-9 at 4 Hz, SPEC §2.3 notes).
+        max_iterations: Newton steps before giving up.
+        linear_solver: "auto", "cholesky" or "qr" (module docstring).
+    """
+
+    primal_tolerance: float = 1e-10
+    gap_tolerance: float = 1e-12
+    dual_tolerance: float = 1e-7
+    max_iterations: int = 80
+    linear_solver: str = "auto"
+
+    def __post_init__(self) -> None:
+        for name in ("primal_tolerance", "gap_tolerance", "dual_tolerance"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"BandedIpOptions.{name} = {value!r} must be positive")
+        if isinstance(self.max_iterations, bool) or not isinstance(self.max_iterations, int) \
+                or self.max_iterations < 1:
+            raise ValueError(f"BandedIpOptions.max_iterations = {self.max_iterations!r} must "
+                             "be a positive integer")
+        if self.linear_solver not in LINEAR_SOLVERS:
+            raise ValueError(f"BandedIpOptions.linear_solver = {self.linear_solver!r} must be "
+                             f"one of {LINEAR_SOLVERS}")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class BandedIpResult:
+    """Solution of one joint's problem.
+
+    Attributes:
+        y: the solution (4N,); NaN when not converged.
+        converged: whether every tolerance was met.
+        status: "converged", "max_iterations" or "numerical_failure: …".
+        iterations: Newton steps taken.
+        linear_solver: the route used ("cholesky" or "qr").
+        primal_residual, gap, dual_residual: the final measures.
+        multipliers: λ_u − λ_l per row of F (positive where the upper limit is active).
+    """
+
+    y: np.ndarray
+    converged: bool
+    status: str
+    iterations: int
+    linear_solver: str
+    primal_residual: float
+    gap: float
+    dual_residual: float
+    multipliers: np.ndarray
+
+
+def _band_of(matrix: sparse.spmatrix, half_bandwidth: int) -> np.ndarray:
+    """Upper banded storage ab[u + i − j, j] = M[i, j] (i ≤ j) of a symmetric sparse matrix."""
+    matrix = sparse.dia_matrix(matrix)
+    n = matrix.shape[0]
+    band = np.zeros((half_bandwidth + 1, n))
+    for offset, data in zip(matrix.offsets, matrix.data):
+        if 0 <= offset <= half_bandwidth:
+            # dia_matrix: data[k, j] = M[j − offset, j] for the diagonal ``offset``.
+            band[half_bandwidth - offset, offset:] += data[offset:]
+    return band
+
+
+class _Problem:
+    """The fixed structure of one joint's problem (A, c, F, l, u, fixed) and its solvers."""
+
+    def __init__(self, a, c, f, lower, upper, fixed, options: BandedIpOptions):
+        self.a = sparse.csr_matrix(a)
+        self.c = np.asarray(c, dtype=float)
+        self.f = sparse.csr_matrix(f)
+        self.lower = np.asarray(lower, dtype=float)
+        self.upper = np.asarray(upper, dtype=float)
+        self.fixed = np.asarray(fixed, dtype=bool)
+        self.free = ~self.fixed
+        self.options = options
+        self.n = self.a.shape[1]
+        self.m = self.f.shape[0]
+        self.normal = (self.a.T @ self.a).tocsr()
+        self.abs_a = abs(self.a)
+        self.abs_f = abs(self.f)
+        pattern = (abs(self.normal) + abs(self.f.T) @ abs(self.f)).tocoo()
+        self.half_bandwidth = int(np.max(np.abs(pattern.col - pattern.row))) if pattern.nnz else 0
+        self.route = self._choose_route(options.linear_solver)
+        if self.route == "qr":
+            self._prepare_qr()
+
+    # -- routes -------------------------------------------------------------------------
+
+    def _masked_band(self, matrix) -> np.ndarray:
+        band = _band_of(matrix, self.half_bandwidth)
+        u = self.half_bandwidth
+        for v in np.flatnonzero(self.fixed):
+            for offset in range(u + 1):
+                if v + offset < self.n:
+                    band[u - offset, v + offset] = 0.0   # M[v, v + offset]
+                if v - offset >= 0:
+                    band[u - offset, v] = 0.0            # M[v − offset, v]
+            band[u, v] = 1.0
+        return band
+
+    def _choose_route(self, requested: str) -> str:
+        if requested != "auto":
+            return requested
+        try:
+            factor = cholesky_banded(self._masked_band(self.normal), lower=False)
+        except LinAlgError:
+            return "qr"
+        pivots = np.abs(factor[-1])
+        if not np.all(np.isfinite(pivots)) or pivots.min() <= 0.0:
+            return "qr"
+        ratio = (pivots.max() / pivots.min()) ** 2
+        return "cholesky" if ratio < _CHOLESKY_CONDITION_LIMIT else "qr"
+
+    def _prepare_qr(self) -> None:
+        """Row windows for the sequential QR: each row's values in the 4-column-aligned window
+        that starts at its first nonzero's block."""
+        rows = sparse.vstack([self.a, self.f]).tocsr()
+        rows.sort_indices()
+        rows = rows[np.diff(rows.indptr) > 0]
+        first = rows.indices[rows.indptr[:-1]]
+        last = rows.indices[rows.indptr[1:] - 1]
+        block = first // 4
+        width = int(np.max(last - 4 * block)) + 1
+        self.qr_width = 4 * math.ceil(width / 4)
+        num_rows = rows.shape[0]
+        window = np.zeros((num_rows, self.qr_width))
+        row_of_entry = np.repeat(np.arange(num_rows), np.diff(rows.indptr))
+        window[row_of_entry, rows.indices - 4 * block[row_of_entry]] = rows.data
+        # Fixed variables: their columns dropped from every row; identity rows added per block.
+        on_fixed = self.fixed[rows.indices]
+        window[row_of_entry[on_fixed], (rows.indices - 4 * block[row_of_entry])[on_fixed]] = 0.0
+        self.qr_is_f = np.zeros(num_rows, dtype=bool)
+        # Which rows are F rows (to be weighted by √D): identify by position in the stack.
+        a_rows = int(np.count_nonzero(np.diff(self.a.indptr) > 0))
+        self.qr_is_f[a_rows:] = True
+        f_nonempty = np.flatnonzero(np.diff(self.f.indptr) > 0)
+        self.qr_f_index = np.full(num_rows, -1)
+        self.qr_f_index[a_rows:] = f_nonempty
+        order = np.argsort(block, kind="stable")
+        self.qr_window = window[order]
+        self.qr_block = block[order]
+        self.qr_is_f = self.qr_is_f[order]
+        self.qr_f_index = self.qr_f_index[order]
+        self.qr_a_row = np.full(num_rows, -1)
+        a_nonempty = np.flatnonzero(np.diff(self.a.indptr) > 0)
+        a_positions = np.full(num_rows, -1)
+        a_positions[:a_rows] = a_nonempty
+        self.qr_a_row = a_positions[order]
+        num_blocks = self.n // 4
+        self.qr_starts = np.searchsorted(self.qr_block, np.arange(num_blocks + 1))
+
+    def solve(self, weights, rhs_a, rhs_f):
+        """Solves (AᵀA + Fᵀ diag(weights) F) Δ = Aᵀ rhs_a + Fᵀ rhs_f on the free entries
+        (Δ = 0 on the fixed ones). Returns Δ (n,)."""
+        if self.route == "cholesky":
+            try:
+                return self._solve_cholesky(weights, rhs_a, rhs_f)
+            except LinAlgError:
+                # Late in the iterations λ/s of the active rows grows without bound and the
+                # normal equations lose definiteness in floating point; the square-root route
+                # does not form them. Continue with it.
+                self.route = "cholesky+qr"
+                self._prepare_qr()
+        return self._solve_qr(weights, rhs_a, rhs_f)
+
+    def _solve_cholesky(self, weights, rhs_a, rhs_f):
+        matrix = (self.normal + self.f.T @ sparse.diags(weights) @ self.f).tocsr()
+        b = self.a.T @ rhs_a + self.f.T @ rhs_f
+        b[self.fixed] = 0.0
+        band = self._masked_band(matrix)
+        u = self.half_bandwidth
+        try:
+            factor = cholesky_banded(band, lower=False)
+            shifted = False
+        except LinAlgError:
+            # Static regularisation: factor M + εI, then conjugate gradients on M with that
+            # factor as the preconditioner.
+            shift = 1e-12 * float(np.max(band[u]))
+            for _ in range(6):
+                trial = band.copy()
+                trial[u, self.free] += shift
+                try:
+                    factor = cholesky_banded(trial, lower=False)
+                    break
+                except LinAlgError:
+                    shift *= 100.0
+            else:
+                raise
+            shifted = True
+
+        def apply(v):
+            out = matrix @ v
+            out[self.fixed] = 0.0
+            return out
+
+        def precondition(v):
+            out = cho_solve_banded((factor, False), v)
+            out[self.fixed] = 0.0
+            return out
+
+        x = precondition(b)
+        residual = b - apply(x)
+        norm_b = float(np.max(np.abs(b))) or 1.0
+        if not shifted:
+            # One step of iterative refinement is enough with the exact factor.
+            x += precondition(residual)
+            return x
+        direction = precondition(residual)
+        preconditioned = direction.copy()
+        rho = residual @ preconditioned
+        for _ in range(50):
+            if np.max(np.abs(residual)) <= 1e-13 * norm_b:
+                return x
+            product = apply(direction)
+            curvature = direction @ product
+            if not curvature > 0.0:
+                break
+            step = rho / curvature
+            x += step * direction
+            residual -= step * product
+            preconditioned = precondition(residual)
+            rho, previous = residual @ preconditioned, rho
+            direction = preconditioned + (rho / previous) * direction
+        if np.max(np.abs(residual)) <= 1e-9 * norm_b:
+            return x
+        raise LinAlgError("regularised Cholesky + CG did not reach the Newton step")
+
+    def _solve_qr(self, weights, rhs_a, rhs_f):
+        # Row i of F weighted by √D_i with right-hand side rhs_f,i / √D_i has the normal
+        # equations of the Newton step; rows of A keep their weight.
+        root = np.sqrt(weights)
+        is_f = self.qr_is_f
+        scale = np.ones(is_f.size)
+        values = np.empty(is_f.size)
+        values[~is_f] = rhs_a[self.qr_a_row[~is_f]]
+        f_rows = self.qr_f_index[is_f]
+        scale[is_f] = root[f_rows]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            values[is_f] = np.where(root[f_rows] > 0.0, rhs_f[f_rows] / root[f_rows], 0.0)
+        window = self.qr_window * scale[:, None]
+        width = self.qr_width
+        num_blocks = self.n // 4
+        factor_rows = np.zeros((self.n, width))
+        factor_rhs = np.zeros(self.n)
+        carry = np.zeros((0, width + 1))
+        for b in range(num_blocks):
+            lo, hi = self.qr_starts[b], self.qr_starts[b + 1]
+            new = np.hstack([window[lo:hi], values[lo:hi, None]])
+            fixed_here = np.flatnonzero(self.fixed[4 * b: 4 * b + 4])
+            identity = np.zeros((fixed_here.size, width + 1))
+            identity[np.arange(fixed_here.size), fixed_here] = 1.0
+            stacked = np.vstack([carry, new, identity])
+            r = np.linalg.qr(stacked, mode="r")
+            if r.shape[0] < 4:
+                r = np.vstack([r, np.zeros((4 - r.shape[0], width + 1))])
+            factor_rows[4 * b: 4 * b + 4] = r[:4, :width]
+            factor_rhs[4 * b: 4 * b + 4] = r[:4, width]
+            rest = r[4:width, 4:]
+            carry = np.zeros((rest.shape[0], width + 1))
+            carry[:, :width - 4] = rest[:, :width - 4]
+            carry[:, width] = rest[:, width - 4]
+        diagonal = factor_rows[np.arange(self.n), np.arange(self.n) % 4]
+        if not np.all(np.isfinite(diagonal)) or np.min(np.abs(diagonal)) == 0.0:
+            raise LinAlgError("the whitened rows are rank deficient")
+        # Upper-triangular band: ab[u + i − j, j] = R[i, j], u = width − 1.
+        u = width - 1
+        band = np.zeros((u + 1, self.n))
+        rows = np.repeat(np.arange(self.n), width)
+        cols = (4 * (rows // 4)) + np.tile(np.arange(width), self.n)
+        inside = (cols < self.n) & (cols >= rows)
+        band[u + rows[inside] - cols[inside], cols[inside]] = factor_rows.ravel()[inside]
+        return solve_banded((0, u), band, factor_rhs)
+
+    # -- the interior-point method ----------------------------------------------------------
+
+    def run(self, y0) -> BandedIpResult:
+        opts = self.options
+        y = np.array(y0, dtype=float)
+        y[self.fixed] = 0.0
+        m = self.m
+        if m == 0:
+            return self._unconstrained(y)
+        fy = self.f @ y
+        s_u = np.maximum(self.upper - fy, 1.0)
+        s_l = np.maximum(fy - self.lower, 1.0)
+        lam_u = np.ones(m)
+        lam_l = np.ones(m)
+        status, iteration = "max_iterations", 0
+        measures = (math.inf, math.inf, math.inf)
+        for iteration in range(1, opts.max_iterations + 1):
+            fy = self.f @ y
+            residual_a = self.a @ y - self.c
+            r_pu = fy + s_u - self.upper
+            r_pl = -fy + s_l + self.lower
+            gradient = self.a.T @ residual_a
+            r_d = gradient + self.f.T @ (lam_u - lam_l)
+            r_d[self.fixed] = 0.0
+            # Relative to the size of the terms summed (round-off in Aᵀ(Ay − c) grows with
+            # |A|ᵀ(|A||y| + |c|), ~1e8 × |y| at Δt = 0.01 s).
+            dual_scale = 1.0 + max(
+                np.max((self.abs_a.T @ (self.abs_a @ np.abs(y) + np.abs(self.c)))[self.free],
+                       initial=0.0),
+                np.max(self.abs_f.T @ (lam_u + lam_l)))
+            gap = (s_u @ lam_u + s_l @ lam_l) / (2 * m)
+            measures = (max(np.max(np.abs(r_pu)), np.max(np.abs(r_pl))), gap,
+                        np.max(np.abs(r_d)) / dual_scale)
+            # F y sums terms of size |F||y| (~5e5 for a jerk row at 100 Hz): its round-off,
+            # ~5e-16 of that, is a floor no iteration can go below.
+            primal_floor = _PRIMAL_ROUND_OFF * float(np.max(self.abs_f @ np.abs(y)))
+            if (measures[0] <= max(opts.primal_tolerance, primal_floor)
+                    and measures[1] <= opts.gap_tolerance
+                    and measures[2] <= opts.dual_tolerance):
+                status = "converged"
+                iteration -= 1
+                break
+            weights = lam_u / s_u + lam_l / s_l
+            try:
+                def newton(rc_u, rc_l):
+                    w_u = (lam_u * r_pu - rc_u) / s_u
+                    w_l = (lam_l * r_pl - rc_l) / s_l
+                    rhs_f = -(lam_u + w_u) + (lam_l + w_l)
+                    dy = self.solve(weights, -residual_a, rhs_f)
+                    dfy = self.f @ dy
+                    ds_u = -r_pu - dfy
+                    ds_l = -r_pl + dfy
+                    dl_u = -(rc_u + lam_u * ds_u) / s_u
+                    dl_l = -(rc_l + lam_l * ds_l) / s_l
+                    return dy, ds_u, ds_l, dl_u, dl_l
+
+                # Predictor (affine scaling).
+                step = newton(s_u * lam_u, s_l * lam_l)
+                alpha = _max_step((s_u, s_l, lam_u, lam_l), step[1:])
+                gap_affine = ((s_u + alpha * step[1]) @ (lam_u + alpha * step[3])
+                              + (s_l + alpha * step[2]) @ (lam_l + alpha * step[4])) / (2 * m)
+                centering = (gap_affine / gap) ** 3 if gap > 0 else 0.0
+                # Corrector with centring.
+                step = newton(s_u * lam_u + step[1] * step[3] - centering * gap,
+                              s_l * lam_l + step[2] * step[4] - centering * gap)
+            except (LinAlgError, ValueError) as error:
+                status = f"numerical_failure: {error}"
+                break
+            if not all(np.all(np.isfinite(part)) for part in step):
+                status = "numerical_failure: non-finite Newton step"
+                break
+            alpha = min(1.0, _STEP_FRACTION * _max_step((s_u, s_l, lam_u, lam_l), step[1:]))
+            y = y + alpha * step[0]
+            s_u = s_u + alpha * step[1]
+            s_l = s_l + alpha * step[2]
+            lam_u = lam_u + alpha * step[3]
+            lam_l = lam_l + alpha * step[4]
+        converged = status == "converged"
+        return BandedIpResult(
+            y=y if converged else np.full_like(y, np.nan), converged=converged, status=status,
+            iterations=iteration, linear_solver=self.route, primal_residual=float(measures[0]),
+            gap=float(measures[1]), dual_residual=float(measures[2]),
+            multipliers=lam_u - lam_l)
+
+    def _unconstrained(self, y) -> BandedIpResult:
+        try:
+            dy = self.solve(np.zeros(0), -(self.a @ y - self.c), np.zeros(0))
+        except (LinAlgError, ValueError) as error:
+            return BandedIpResult(np.full_like(y, np.nan), False, f"numerical_failure: {error}",
+                                  1, self.route, math.nan, math.nan, math.nan, np.zeros(0))
+        return BandedIpResult(y + dy, True, "converged", 1, self.route, 0.0, 0.0, 0.0,
+                              np.zeros(0))
+
+
+def _max_step(values, steps) -> float:
+    """Largest α with every v + α Δv ≥ 0 (v > 0); inf when no Δv is negative."""
+    alpha = math.inf
+    for v, dv in zip(values, steps):
+        negative = dv < 0
+        if np.any(negative):
+            alpha = min(alpha, float(np.min(-v[negative] / dv[negative])))
+    return alpha
+
+
+def solve_banded_qp(a, c, f, lower, upper, fixed, y0, options: BandedIpOptions = BandedIpOptions()
+                    ) -> BandedIpResult:
+    """minimise ½‖A y − c‖² s.t. lower ≤ F y ≤ upper, y[fixed] = 0, by the banded IP method.
+
+    Args:
+        a: (rows, n) sparse, n a multiple of 4 (4 states per sample), banded by sample.
+        c: (rows,).
+        f: (m, n) sparse limit rows, banded by sample; lower/upper (m,), lower < upper.
+        fixed: (n,) bool, entries held at 0.
+        y0: starting point (n,), e.g. the unconstrained optimum.
+        options: tolerances and the linear-algebra route.
+    """
+    problem = _Problem(a, c, f, lower, upper, fixed, options)
+    return problem.run(y0)

@@ -1,0 +1,199 @@
+"""The banded interior point for Offline-CKS against independent solutions.
+
+Oracles: the RTS smoother (its problem without limits), the dense interior point with an
+active-set KKT certificate of tests/test_offline.py (written out independently from SPEC §2.3
+/§2.6), the Drake MathematicalProgram (Clarabel), and at Δt = 0.01 s, where no dense or
+generic solver is reliable (cond ≈ 1e17), the KKT conditions checked on the returned point.
+"""
+
+import numpy as np
+import pytest
+from core_fixtures import operator_recording
+from test_offline import _assert_same_states, _dense_qp
+
+from telesmooth.smoothing.banded_ip import BandedIpOptions, solve_banded_qp
+from telesmooth.smoothing.kalman import rest_prior, rts_smoother
+from telesmooth.smoothing.metrics import VIOLATION_RTOL
+from telesmooth.smoothing.model import JerkModel
+from telesmooth.smoothing.offline import banded_problem, solve_offline_cks
+
+SIGMA, R = 4e-4, 1e-6
+ACC, JERK, VEL = 0.05, 0.1, 0.1
+
+
+def _setup(dt, num_samples=40, num_joints=2, seed=21):
+    z = operator_recording(num_samples=num_samples, num_joints=num_joints, dt=dt, seed=seed)
+    return z, JerkModel.make(dt, SIGMA, R, num_joints=num_joints)
+
+
+@pytest.mark.parametrize("dt", [0.25, 0.01])
+def test_problem_without_limits_is_the_rts_smoother(dt):
+    """argmin ½‖Ay − c‖² by a dense least-squares solve equals the RTS means."""
+    z, model = _setup(dt, num_samples=24, num_joints=1)
+    prior = rest_prior(z[0], model)
+    a, c, f, *_ = banded_problem(z[:, 0], model, 0, prior, z[0, 0], np.inf, np.inf, np.inf,
+                                 "none", False)
+    assert f.shape[0] == 0
+    # Column scaling keeps the dense solve accurate (the columns span 8 orders at 100 Hz).
+    dense = a.toarray()
+    norms = np.linalg.norm(dense, axis=0)
+    q, rr = np.linalg.qr(dense / norms)
+    y = np.linalg.solve(rr, q.T @ c) / norms
+    states = model.from_scaled(y.reshape(-1, 4) + [z[0, 0], 0, 0, 0])
+    rts = rts_smoother(z, model, prior).mean[:, 0]
+    _assert_same_states(states, rts, dt, atol=1e-8 if dt == 0.25 else 1e-6)
+
+
+@pytest.mark.parametrize("route", ["cholesky", "qr"])
+@pytest.mark.parametrize("constraint,vel,rest_at_end", [
+    ("state", None, False), ("trajectory", None, False), ("trajectory", VEL, True),
+    ("both", None, True)])
+def test_matches_the_dense_certified_optimum(route, constraint, vel, rest_at_end):
+    z, model = _setup(0.25, seed=22)
+    result = solve_offline_cks(z, model, max_acceleration=ACC, max_jerk=JERK, max_velocity=vel,
+                               constraint=constraint, rest_at_end=rest_at_end,
+                               solver="banded-ip",
+                               banded_options=BandedIpOptions(linear_solver=route))
+    assert result.is_success, result.solution_results
+    assert result.solver_name == "banded-ip"
+    for j in range(2):
+        dense = _dense_qp(z[:, j], model, j, constraint=constraint, acc=ACC, jerk=JERK,
+                          vel=vel, rest_at_end=rest_at_end)
+        _assert_same_states(result.states[:, j], dense, 0.25)
+
+
+@pytest.mark.parametrize("constraint", ["state", "trajectory", "both"])
+def test_agrees_with_the_mathematical_program(constraint):
+    """Issue 6: within 1e-6 of the Drake/Clarabel solution (scaled states, rad)."""
+    z, model = _setup(0.25, num_samples=120, num_joints=3, seed=5)
+    kwargs = dict(max_acceleration=ACC, max_jerk=JERK, constraint=constraint, rest_at_end=True)
+    drake = solve_offline_cks(z, model, **kwargs)
+    banded = solve_offline_cks(z, model, solver="banded-ip", **kwargs)
+    assert drake.is_success and banded.is_success
+    assert drake.solver_name == "Clarabel" and banded.solver_name == "banded-ip"
+    _assert_same_states(banded.states, drake.states, 0.25, atol=1e-6)
+    # The limits bind, or the comparison would only be of two RTS passes.
+    rts = rts_smoother(z, model, rest_prior(z[0], model)).mean
+    assert np.abs(rts[:, :, 2]).max() > 1.2 * ACC
+
+
+def test_cholesky_and_qr_routes_agree():
+    z, model = _setup(0.1, num_samples=200, num_joints=1, seed=3)
+    kwargs = dict(max_acceleration=ACC, max_jerk=JERK, constraint="trajectory",
+                  rest_at_end=True, solver="banded-ip")
+    states = [solve_offline_cks(z, model, banded_options=BandedIpOptions(linear_solver=route),
+                                **kwargs).states for route in ("cholesky", "qr")]
+    _assert_same_states(states[0], states[1], 0.1, atol=1e-8)
+
+
+def _kkt_check(z, model, result_states, constraint, rest_at_end, vel=np.inf):
+    """Returns (primal excess, stationarity residual relative to the terms, active rows) of
+    the banded problem at the returned point: the multipliers are the least-squares fit of
+    −∇f by the active rows (upper rows +F, lower rows −F); a negative one fails the check by
+    counting as a residual."""
+    prior = rest_prior(z[0], model)
+    a, c, f, lower, upper, fixed = banded_problem(z[:, 0], model, 0, prior, z[0, 0], ACC,
+                                                  JERK, vel, constraint, rest_at_end)
+    y = (model.to_scaled(result_states[:, 0]) - [z[0, 0], 0, 0, 0]).ravel()
+    values = f @ y
+    excess = max(0.0, np.max(values - upper), np.max(lower - values))
+    gradient = a.T @ (a @ y - c)
+    free = ~fixed
+    active_up = np.flatnonzero(values > upper - 1e-7)
+    active_low = np.flatnonzero(values < lower + 1e-7)
+    columns = np.hstack([f[active_up].T.toarray(), -f[active_low].T.toarray()])[free]
+    scale = np.max(np.abs(a.T) @ (np.abs(a) @ np.abs(y) + np.abs(c)))
+    if columns.shape[1] == 0:
+        return excess, np.max(np.abs(gradient[free])) / scale, 0
+    norms = np.linalg.norm(columns, axis=0)
+    multipliers = np.linalg.lstsq(columns / norms, -gradient[free], rcond=None)[0]
+    residual = np.max(np.abs(columns / norms @ multipliers + gradient[free]))
+    wrong_sign = np.max(np.maximum(-multipliers, 0.0), initial=0.0)
+    return excess, max(residual, wrong_sign) / scale, len(active_up) + len(active_low)
+
+
+@pytest.mark.parametrize("constraint,rest_at_end", [("trajectory", False),
+                                                    ("trajectory", True), ("state", False)])
+def test_100hz_solution_satisfies_the_kkt_conditions(constraint, rest_at_end):
+    """At Δt = 0.01 s Clarabel fails; the square-root route's answer is certified by KKT:
+    feasible, and −∇f is a non-negative combination of the active limit rows."""
+    z = np.zeros((150, 1))
+    z[40:] = 0.05                     # a 50 mrad step: far beyond the limits at 100 Hz
+    z += 1e-4 * np.random.default_rng(4).normal(size=z.shape)
+    model = JerkModel.make(0.01, SIGMA, R, num_joints=1)
+    result = solve_offline_cks(z, model, max_acceleration=ACC, max_jerk=JERK,
+                               constraint=constraint, rest_at_end=rest_at_end,
+                               solver="banded-ip")
+    assert result.is_success, result.solution_results
+    excess, stationarity, active = _kkt_check(z, model, result.states, constraint, rest_at_end)
+    assert active > 0
+    assert excess <= 1e-9
+    assert stationarity <= 1e-9
+    if constraint == "trajectory":
+        p = np.concatenate([np.full(3, z[0, 0]), result.states[:, 0, 0]]
+                           + ([np.full(3, result.states[-1, 0, 0])] if rest_at_end else []))
+        for order, limit in ((2, ACC), (3, JERK)):
+            fd = np.diff(p, n=order) / 0.01**order
+            assert np.abs(fd).max() <= limit * (1 + VIOLATION_RTOL)
+
+
+def test_a_perturbed_point_is_not_certified():
+    """The KKT check above can fail: move the certified 100 Hz optimum a little."""
+    z = np.zeros((150, 1))
+    z[40:] = 0.05
+    model = JerkModel.make(0.01, SIGMA, R, num_joints=1)
+    result = solve_offline_cks(z, model, max_acceleration=ACC, max_jerk=JERK,
+                               constraint="trajectory", solver="banded-ip")
+    assert result.is_success
+    states = result.states.copy()
+    states[75:, 0, 0] += 1e-7          # 0.1 µrad on half the positions
+    excess, stationarity, _ = _kkt_check(z, model, states, "trajectory", False)
+    assert excess > 1e-9 or stationarity > 1e-9
+
+
+def test_options_and_solver_are_checked():
+    z, model = _setup(0.25, num_samples=10, num_joints=1)
+    with pytest.raises(ValueError, match="solver = 'osqp'"):
+        solve_offline_cks(z, model, solver="osqp")
+    with pytest.raises(ValueError, match="linear_solver = 'lu'"):
+        BandedIpOptions(linear_solver="lu")
+    with pytest.raises(ValueError, match="max_iterations = 0"):
+        BandedIpOptions(max_iterations=0)
+    with pytest.raises(ValueError, match="primal_tolerance = -1"):
+        BandedIpOptions(primal_tolerance=-1.0)
+
+
+def test_iteration_limit_is_reported_not_raised():
+    z, model = _setup(0.25, num_samples=60, num_joints=1, seed=9)
+    result = solve_offline_cks(z, model, max_acceleration=ACC, max_jerk=JERK,
+                               constraint="trajectory", solver="banded-ip",
+                               banded_options=BandedIpOptions(max_iterations=2))
+    assert not result.is_success
+    assert result.solution_results == ("banded-ip: max_iterations",)
+    assert np.all(np.isnan(result.states))
+
+
+def test_unconstrained_problem_returns_the_least_squares_point():
+    z, model = _setup(0.25, num_samples=30, num_joints=1)
+    prior = rest_prior(z[0], model)
+    a, c, f, lower, upper, fixed = banded_problem(z[:, 0], model, 0, prior, z[0, 0], np.inf,
+                                                  np.inf, np.inf, "none", False)
+    result = solve_banded_qp(a, c, f, lower, upper, fixed, np.zeros(a.shape[1]))
+    assert result.converged and result.iterations == 1
+    rts = model.to_scaled(rts_smoother(z, model, prior).mean[:, 0]) - [z[0, 0], 0, 0, 0]
+    np.testing.assert_allclose(result.y.reshape(-1, 4), rts, atol=1e-8)
+
+
+def test_drake_falls_back_to_the_banded_solver_when_clarabel_fails():
+    """A 1 mrad step in 8 samples at 100 Hz: Clarabel reports InsufficientProgress or a
+    numerical error at every tolerance of the ladder; the answer comes from the banded IP."""
+    z = np.zeros((8, 1))
+    z[4:] = 1e-3
+    model = JerkModel.make(0.01, SIGMA, R, num_joints=1)
+    kwargs = dict(max_acceleration=ACC, max_jerk=JERK, constraint="trajectory")
+    result = solve_offline_cks(z, model, **kwargs)
+    assert result.is_success
+    assert result.solver_name.startswith("Clarabel failed (") and \
+        result.solver_name.endswith("banded-ip fallback")
+    direct = solve_offline_cks(z, model, solver="banded-ip", **kwargs)
+    np.testing.assert_array_equal(result.states, direct.states)
