@@ -148,29 +148,60 @@ class _Problem:
         self.abs_f = abs(self.f)
         pattern = (abs(self.normal) + abs(self.f.T) @ abs(self.f)).tocoo()
         self.half_bandwidth = int(np.max(np.abs(pattern.col - pattern.row))) if pattern.nnz else 0
+        self._prepare_cholesky()
         self.route = self._choose_route(options.linear_solver)
         if self.route == "qr":
             self._prepare_qr()
 
     # -- routes -------------------------------------------------------------------------
 
-    def _masked_band(self, matrix) -> np.ndarray:
-        band = _band_of(matrix, self.half_bandwidth)
+    def _prepare_cholesky(self) -> None:
+        """Banded storage of AᵀA and, per pair of entries of each row of F, where D_i v_a v_b
+        goes in the band, so that each Newton step assembles its band with one bincount."""
         u = self.half_bandwidth
-        for v in np.flatnonzero(self.fixed):
-            for offset in range(u + 1):
-                if v + offset < self.n:
-                    band[u - offset, v + offset] = 0.0   # M[v, v + offset]
-                if v - offset >= 0:
-                    band[u - offset, v] = 0.0            # M[v − offset, v]
-            band[u, v] = 1.0
-        return band
+        n = self.n
+        self.band_size = (u + 1) * n
+        # Fixed variables: their rows and columns zero, a unit diagonal.
+        keep = np.ones((u + 1, n), dtype=bool)
+        for offset in range(u + 1):
+            keep[u - offset, offset:][self.fixed[:n - offset]] = False   # M[v, v + offset]
+            keep[u - offset, :][self.fixed] = False                      # M[v − offset, v]
+        self.band_keep = keep
+        self.normal_band = _band_of(self.normal, u) * keep
+        self.normal_band[u, self.fixed] = 1.0
+        f = self.f
+        counts = np.diff(f.indptr)
+        rows_all, flat_all, coef_all = [], [], []
+        for first in range(int(counts.max(initial=0))):
+            for second in range(first, int(counts.max(initial=0))):
+                rows = np.flatnonzero(counts > second)
+                col_a = f.indices[f.indptr[rows] + first]
+                col_b = f.indices[f.indptr[rows] + second]
+                value = f.data[f.indptr[rows] + first] * f.data[f.indptr[rows] + second]
+                low, high = np.minimum(col_a, col_b), np.maximum(col_a, col_b)
+                rows_all.append(rows)
+                flat_all.append((u - (high - low)) * n + high)
+                coef_all.append(value)
+        self.pair_rows = np.concatenate(rows_all) if rows_all else np.zeros(0, dtype=int)
+        self.pair_flat = np.concatenate(flat_all) if flat_all else np.zeros(0, dtype=int)
+        self.pair_coef = np.concatenate(coef_all) if coef_all else np.zeros(0)
+        # Entries that fall on a fixed row or column are dropped.
+        on_kept = keep.ravel()[self.pair_flat]
+        self.pair_rows = self.pair_rows[on_kept]
+        self.pair_flat = self.pair_flat[on_kept]
+        self.pair_coef = self.pair_coef[on_kept]
+
+    def _band(self, weights) -> np.ndarray:
+        """Banded storage of AᵀA + Fᵀ diag(weights) F with the fixed rows masked."""
+        added = np.bincount(self.pair_flat, weights=weights[self.pair_rows] * self.pair_coef,
+                            minlength=self.band_size)
+        return self.normal_band + added.reshape(self.half_bandwidth + 1, self.n)
 
     def _choose_route(self, requested: str) -> str:
         if requested != "auto":
             return requested
         try:
-            factor = cholesky_banded(self._masked_band(self.normal), lower=False)
+            factor = cholesky_banded(self.normal_band, lower=False, check_finite=False)
         except LinAlgError:
             return "qr"
         pivots = np.abs(factor[-1])
@@ -217,28 +248,25 @@ class _Problem:
         num_blocks = self.n // 4
         self.qr_starts = np.searchsorted(self.qr_block, np.arange(num_blocks + 1))
 
-    def solve(self, weights, rhs_a, rhs_f):
-        """Solves (AᵀA + Fᵀ diag(weights) F) Δ = Aᵀ rhs_a + Fᵀ rhs_f on the free entries
-        (Δ = 0 on the fixed ones). Returns Δ (n,)."""
+    def factorize(self, weights):
+        """Factorises AᵀA + Fᵀ diag(weights) F; returns solve(rhs_a, rhs_f) → Δ (n,) with
+        (AᵀA + Fᵀ D F) Δ = Aᵀ rhs_a + Fᵀ rhs_f on the free entries and Δ = 0 on the fixed."""
         if self.route == "cholesky":
             try:
-                return self._solve_cholesky(weights, rhs_a, rhs_f)
+                return self._cholesky_solver(weights)
             except LinAlgError:
                 # Late in the iterations λ/s of the active rows grows without bound and the
                 # normal equations lose definiteness in floating point; the square-root route
                 # does not form them. Continue with it.
                 self.route = "cholesky+qr"
                 self._prepare_qr()
-        return self._solve_qr(weights, rhs_a, rhs_f)
+        return lambda rhs_a, rhs_f: self._solve_qr(weights, rhs_a, rhs_f)
 
-    def _solve_cholesky(self, weights, rhs_a, rhs_f):
-        matrix = (self.normal + self.f.T @ sparse.diags(weights) @ self.f).tocsr()
-        b = self.a.T @ rhs_a + self.f.T @ rhs_f
-        b[self.fixed] = 0.0
-        band = self._masked_band(matrix)
+    def _cholesky_solver(self, weights):
+        band = self._band(weights)
         u = self.half_bandwidth
         try:
-            factor = cholesky_banded(band, lower=False)
+            factor = cholesky_banded(band, lower=False, check_finite=False)
             shifted = False
         except LinAlgError:
             # Static regularisation: factor M + εI, then conjugate gradients on M with that
@@ -248,7 +276,7 @@ class _Problem:
                 trial = band.copy()
                 trial[u, self.free] += shift
                 try:
-                    factor = cholesky_banded(trial, lower=False)
+                    factor = cholesky_banded(trial, lower=False, check_finite=False)
                     break
                 except LinAlgError:
                     shift *= 100.0
@@ -257,41 +285,44 @@ class _Problem:
             shifted = True
 
         def apply(v):
-            out = matrix @ v
+            out = self.normal @ v + self.f.T @ (weights * (self.f @ v))
             out[self.fixed] = 0.0
             return out
 
         def precondition(v):
-            out = cho_solve_banded((factor, False), v)
+            out = cho_solve_banded((factor, False), v, check_finite=False)
             out[self.fixed] = 0.0
             return out
 
-        x = precondition(b)
-        residual = b - apply(x)
-        norm_b = float(np.max(np.abs(b))) or 1.0
-        if not shifted:
-            # One step of iterative refinement is enough with the exact factor.
-            x += precondition(residual)
-            return x
-        direction = precondition(residual)
-        preconditioned = direction.copy()
-        rho = residual @ preconditioned
-        for _ in range(50):
-            if np.max(np.abs(residual)) <= 1e-13 * norm_b:
+        def solve(rhs_a, rhs_f):
+            b = self.a.T @ rhs_a + self.f.T @ rhs_f
+            b[self.fixed] = 0.0
+            x = precondition(b)
+            residual = b - apply(x)
+            if not shifted:
+                # One step of iterative refinement is enough with the exact factor.
+                return x + precondition(residual)
+            norm_b = float(np.max(np.abs(b))) or 1.0
+            direction = precondition(residual)
+            rho = residual @ direction
+            for _ in range(50):
+                if np.max(np.abs(residual)) <= 1e-13 * norm_b:
+                    return x
+                product = apply(direction)
+                curvature = direction @ product
+                if not curvature > 0.0:
+                    break
+                step = rho / curvature
+                x = x + step * direction
+                residual = residual - step * product
+                preconditioned = precondition(residual)
+                rho, previous = residual @ preconditioned, rho
+                direction = preconditioned + (rho / previous) * direction
+            if np.max(np.abs(residual)) <= 1e-9 * norm_b:
                 return x
-            product = apply(direction)
-            curvature = direction @ product
-            if not curvature > 0.0:
-                break
-            step = rho / curvature
-            x += step * direction
-            residual -= step * product
-            preconditioned = precondition(residual)
-            rho, previous = residual @ preconditioned, rho
-            direction = preconditioned + (rho / previous) * direction
-        if np.max(np.abs(residual)) <= 1e-9 * norm_b:
-            return x
-        raise LinAlgError("regularised Cholesky + CG did not reach the Newton step")
+            raise LinAlgError("regularised Cholesky + CG did not reach the Newton step")
+
+        return solve
 
     def _solve_qr(self, weights, rhs_a, rhs_f):
         # Row i of F weighted by √D_i with right-hand side rhs_f,i / √D_i has the normal
@@ -383,11 +414,21 @@ class _Problem:
                 break
             weights = lam_u / s_u + lam_l / s_l
             try:
+                solve = self.factorize(weights)
+
                 def newton(rc_u, rc_l):
                     w_u = (lam_u * r_pu - rc_u) / s_u
                     w_l = (lam_l * r_pl - rc_l) / s_l
                     rhs_f = -(lam_u + w_u) + (lam_l + w_l)
-                    dy = self.solve(weights, -residual_a, rhs_f)
+                    try:
+                        dy = solve(-residual_a, rhs_f)
+                    except LinAlgError:
+                        if self.route != "cholesky":
+                            raise
+                        # The regularised factor could not reach this right-hand side.
+                        self.route = "cholesky+qr"
+                        self._prepare_qr()
+                        dy = self._solve_qr(weights, -residual_a, rhs_f)
                     dfy = self.f @ dy
                     ds_u = -r_pu - dfy
                     ds_l = -r_pl + dfy
@@ -425,7 +466,7 @@ class _Problem:
 
     def _unconstrained(self, y) -> BandedIpResult:
         try:
-            dy = self.solve(np.zeros(0), -(self.a @ y - self.c), np.zeros(0))
+            dy = self.factorize(np.zeros(0))(-(self.a @ y - self.c), np.zeros(0))
         except (LinAlgError, ValueError) as error:
             return BandedIpResult(np.full_like(y, np.nan), False, f"numerical_failure: {error}",
                                   1, self.route, math.nan, math.nan, math.nan, np.zeros(0))

@@ -59,6 +59,8 @@ class SmoothingSettings:
         fixed_lag_method: "recursion" or "superstate".
         reduced_q: reduced-Q settings for Online-CKS.
         offline_tolerance: Clarabel tolerances for Offline-CKS.
+        offline_solver: "drake" (MathematicalProgram + Clarabel, banded IP as the fallback) or
+            "banded-ip" (the banded interior point alone), see smoothing.offline.
     """
 
     max_acceleration: object = np.inf
@@ -72,6 +74,7 @@ class SmoothingSettings:
     fixed_lag_method: str = "recursion"
     reduced_q: ReducedQConfig = field(default_factory=ReducedQConfig)
     offline_tolerance: float = 1e-12
+    offline_solver: str = "drake"
 
 
 @dataclass(frozen=True, eq=False)
@@ -147,6 +150,7 @@ def smooth_recording(
             rest_at_end=settings.rest_at_end,
             joint_names=joint_names,
             tolerance=settings.offline_tolerance,
+            solver=settings.offline_solver,
         )
         details = {
             "constraint": settings.constraint,

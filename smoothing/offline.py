@@ -115,11 +115,11 @@ def finite_difference_operator(
         return sparse.csr_matrix((0, num_samples)), np.zeros(0)
     diff = sparse.diags(coefficients, list(range(order + 1)), shape=(rows, extended), format="csr")
     # e = E p + c q_start: history columns are constants, hold columns repeat p_{N−1}.
-    expand = sparse.lil_matrix((extended, num_samples))
-    for i in range(num_samples):
-        expand[history + i, i] = 1.0
-    for i in range(hold_at_end):
-        expand[history + num_samples + i, num_samples - 1] = 1.0
+    expand = sparse.csr_matrix(
+        (np.ones(num_samples + hold_at_end),
+         (history + np.arange(num_samples + hold_at_end),
+          np.minimum(np.arange(num_samples + hold_at_end), num_samples - 1))),
+        shape=(extended, num_samples))
     constant = np.zeros(extended)
     constant[:history] = 1.0
     a = (diff @ expand.tocsr()).tocsr()

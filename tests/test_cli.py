@@ -242,6 +242,21 @@ def test_state_constraint_output_breaks_fd_limits(tmp_path, capsys, input_csv):
     assert max(jerk["fraction_over_limit"]) > 0.0
 
 
+@pytest.mark.parametrize("constraint", ["state", "trajectory"])
+def test_both_offline_solvers_write_the_same_trajectory(tmp_path, capsys, input_csv, constraint):
+    """--solver banded-ip and the Drake MathematicalProgram agree to 1e-6 rad."""
+    path, _, _ = input_csv
+    outputs = []
+    for solver in ("drake", "banded-ip"):
+        out = tmp_path / f"{solver}.csv"
+        status, _, stderr = run_cli(capsys, path, "-o", out, "--method", "offline-cks",
+                                    "--constraint", constraint, "--solver", solver, *LIMITS)
+        assert status == 0, stderr
+        outputs.append(read_csv(out)[1][:, 1:4])
+    np.testing.assert_allclose(outputs[0], outputs[1], rtol=0, atol=1e-6)
+    assert np.abs(outputs[0] - read_csv(path)[1][:, 1:4]).max() > 1e-4   # limits bind
+
+
 # --- user errors: status 2, one line on stderr, nothing written ---
 
 
