@@ -33,6 +33,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from telesmooth.arms.description import ArmDescription
 from telesmooth.arms.drake_models import add_arm, add_workspace
+from telesmooth.arms.joint_vectors import check_joint_vector
 from telesmooth.arms.workspace import Workspace
 
 __all__ = ["ArmCollisionModel", "CollisionQuery", "DEFAULT_DISTANCE_HORIZON_M"]
@@ -242,25 +243,7 @@ class ArmCollisionModel:
             ValueError: If ``q_rad`` does not have one entry per joint, or an entry is not
                 finite (the message names the joint and the value).
         """
-        try:
-            q = np.asarray(q_rad, dtype=float)
-        except (TypeError, ValueError):
-            raise ValueError(
-                f"q_rad = {q_rad!r} must be {self.num_joints} joint angles in rad, "
-                f"ordered {self.joint_names!r}"
-            ) from None
-        if q.shape != (self.num_joints,):
-            raise ValueError(
-                f"q_rad has shape {q.shape}; expected ({self.num_joints},) for the joints "
-                f"{self.joint_names!r}"
-            )
-        for i, value in enumerate(q):
-            if not math.isfinite(value):
-                raise ValueError(
-                    f"q_rad[{i}] (joint {self.joint_names[i]!r}) = {float(value)!r} "
-                    "must be finite"
-                )
-        return q
+        return check_joint_vector("q_rad", q_rad, self.joint_names)
 
     def query(self, q_rad) -> CollisionQuery:
         """Closest pair and its signed distance at the joint angles ``q_rad``.

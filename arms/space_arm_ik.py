@@ -51,6 +51,7 @@ from pydrake.multibody.tree import JacobianWrtVariable
 
 from telesmooth.arms.description import ArmDescription
 from telesmooth.arms.drake_models import add_arm
+from telesmooth.arms.joint_vectors import check_joint_vector
 
 __all__ = [
     "SPATIAL_POSE_SIZE",
@@ -313,16 +314,8 @@ def solve_space_arm_ik(
             or max_iterations < 1:
         raise ValueError(f"max_iterations = {max_iterations!r} must be an integer >= 1")
     X_desired = pose if isinstance(pose, RigidTransform) else pose_to_rigid_transform(pose)
-    q_seed = np.asarray(q_seed, dtype=float)
-    if q_seed.shape != (n,):
-        raise ValueError(f"q_seed has shape {q_seed.shape}; expected ({n},) for {arm.joint_names}")
     lower, upper = kinematics._lower, kinematics._upper
-    for i, value in enumerate(q_seed):
-        if not (math.isfinite(value) and lower[i] <= value <= upper[i]):
-            raise ValueError(
-                f"q_seed[{i}] (joint {arm.joint_names[i]!r}) = {float(value)!r} must be finite "
-                f"and within [{lower[i]!r}, {upper[i]!r}] rad"
-            )
+    q_seed = check_joint_vector("q_seed", q_seed, arm.joint_names, lower=lower, upper=upper)
 
     tolerances = (position_tolerance_m, orientation_tolerance_rad)
     # The step box: joint limits intersected with |q - q_seed| <= s.

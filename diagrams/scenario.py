@@ -34,8 +34,12 @@ from telesmooth.datasets.haptic_recording import (
     read_haptic_csv,
     read_haptic_npz,
 )
-from telesmooth.datasets.lasa import WorkspaceMapping, lasa_operator_session
-from telesmooth.datasets.synthetic import SyntheticOperatorConfig, synthetic_operator_session
+from telesmooth.datasets.lasa import WorkspaceMapping
+from telesmooth.datasets.operator_recordings import (
+    lasa_haptic_recording,
+    synthetic_haptic_recording,
+)
+from telesmooth.datasets.synthetic import SyntheticOperatorConfig
 from telesmooth.diagrams.channels import DEFAULT_LCM_URL
 from telesmooth.smoothing.validation import as_per_joint
 from telesmooth.diagrams.typed_yaml import config_from_data, load_yaml_text, merge_data
@@ -210,13 +214,10 @@ def make_haptic_recording(scenario: Scenario) -> HapticRecording | None:
     if haptic.source == "lcm":
         return None
     if haptic.source == "lasa":
-        mapping = dataclasses.replace(haptic.lasa_mapping,
-                                      haptic_rate_hz=1.0 / haptic.period_s)
-        recording = HapticRecording.from_operator_session(
-            lasa_operator_session(haptic.lasa_shape, haptic.lasa_demo, mapping=mapping))
+        recording = lasa_haptic_recording(haptic.lasa_shape, haptic.lasa_demo,
+                                          haptic.lasa_mapping, period_s=haptic.period_s)
     elif haptic.source == "synthetic":
-        synthetic = dataclasses.replace(haptic.synthetic, haptic_rate_hz=1.0 / haptic.period_s)
-        recording = HapticRecording.from_operator_session(synthetic_operator_session(synthetic))
+        recording = synthetic_haptic_recording(haptic.synthetic, period_s=haptic.period_s)
     else:
         path = pathlib.Path(haptic.file)
         reader = read_haptic_npz if path.suffix.lower() == ".npz" else read_haptic_csv

@@ -5,8 +5,9 @@ for a scenario (default: the built-in ``Defaults``), drawn by Graphviz with ``ma
 so each stage (haptic source, inverse kinematics, collision checker, delay FIFO, smoother,
 uplink, robot) is one box. Needs the Graphviz ``dot`` program.
 
-Usage: ``python -m telesmooth.scripts.render_diagram [--scenario-name NAME]
-[--scenario-text YAML] [--max-depth 1] [--out docs/teleoperation_diagram.svg]``
+Usage: ``python -m telesmooth.scripts.render_diagram [--scenario FILE] [--scenario-name NAME]
+[--scenario-text YAML] [--max-depth 1] [--out docs/teleoperation_diagram.svg]`` (the scenario
+flags are those of the ``telesmooth`` command line).
 """
 
 from __future__ import annotations
@@ -15,9 +16,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram
 from telesmooth.diagrams.visualization import diagram_svg
+from telesmooth.scripts.cli import _add_scenario_arguments, _load_scenario
 
 DEFAULT_OUT = Path(__file__).resolve().parents[1] / "docs" / "teleoperation_diagram.svg"
 """The committed figure, in the repository's ``docs/`` folder."""
@@ -25,16 +26,13 @@ DEFAULT_OUT = Path(__file__).resolve().parents[1] / "docs" / "teleoperation_diag
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenario-name", default="Defaults")
-    parser.add_argument("--scenario-text", default=None,
-                        help="YAML mapping merged on top, e.g. '{arm: space_arm}'")
+    _add_scenario_arguments(parser)
     parser.add_argument("--max-depth", type=int, default=1,
                         help="depth of nested diagrams to expand (1 = stages as boxes)")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = parser.parse_args(argv)
     try:
-        scenario = load_scenario(scenario_name=args.scenario_name,
-                                 scenario_text=args.scenario_text)
+        scenario = _load_scenario(args)
         svg = diagram_svg(MakeTeleoperationDiagram(scenario).diagram, max_depth=args.max_depth)
     except (ValueError, RuntimeError) as error:
         print(f"render_diagram: {error}", file=sys.stderr)

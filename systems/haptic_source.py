@@ -16,8 +16,12 @@ import numpy as np
 from pydrake.systems.framework import EventStatus, LeafSystem
 
 from telesmooth.datasets.haptic_recording import HapticRecording
-from telesmooth.datasets.lasa import WorkspaceMapping, lasa_operator_session
-from telesmooth.datasets.synthetic import SyntheticOperatorConfig, synthetic_operator_session
+from telesmooth.datasets.lasa import WorkspaceMapping
+from telesmooth.datasets.operator_recordings import (
+    lasa_haptic_recording,
+    synthetic_haptic_recording,
+)
+from telesmooth.datasets.synthetic import SyntheticOperatorConfig
 
 __all__ = ["HapticSource", "HapticSourceConfig"]
 
@@ -150,12 +154,13 @@ class HapticSource(LeafSystem):
             config: Defaults to ``period_s = 1 / mapping.haptic_rate_hz``.
 
         Raises:
-            ValueError: As :func:`lasa_operator_session` and :class:`HapticSource`.
+            ValueError: As :func:`~telesmooth.datasets.lasa.lasa_operator_session` and
+                :class:`HapticSource`.
         """
-        session = lasa_operator_session(shape, demo_index, mapping=mapping)
+        recording = lasa_haptic_recording(shape, demo_index, mapping)
         if config is None:
             config = HapticSourceConfig(period_s=1.0 / mapping.haptic_rate_hz)
-        return cls(HapticRecording.from_operator_session(session), config)
+        return cls(recording, config)
 
     @classmethod
     def from_synthetic(
@@ -172,14 +177,14 @@ class HapticSource(LeafSystem):
                 ``period_s = 1 / config.haptic_rate_hz``.
 
         Raises:
-            ValueError: As :func:`synthetic_operator_session` and :class:`HapticSource`.
+            ValueError: If ``config`` is not a SyntheticOperatorConfig, or as
+                :func:`~telesmooth.datasets.synthetic.synthetic_operator_session` and
+                :class:`HapticSource`.
         """
-        if not isinstance(config, SyntheticOperatorConfig):
-            raise ValueError(f"config = {config!r}; expected a SyntheticOperatorConfig")
-        session = synthetic_operator_session(config)
+        recording = synthetic_haptic_recording(config)
         if source_config is None:
             source_config = HapticSourceConfig(period_s=1.0 / config.haptic_rate_hz)
-        return cls(HapticRecording.from_operator_session(session), source_config)
+        return cls(recording, source_config)
 
     @property
     def pose_names(self) -> tuple[str, ...]:

@@ -28,6 +28,7 @@ from pydrake.math import RollPitchYaw, RotationMatrix
 from pydrake.systems.framework import LeafSystem
 
 from telesmooth.arms.description import ArmDescription
+from telesmooth.arms.joint_vectors import check_joint_vector
 from telesmooth.arms.planar import (
     PlanarArm,
     planar_3r_inverse_kinematics,
@@ -317,7 +318,8 @@ class InverseKinematicsSystem(LeafSystem):
             )
         self._lower = arm.joint_lower_rad
         self._upper = arm.joint_upper_rad
-        q0 = self._validated_initial_position(initial_position_rad)
+        q0 = check_joint_vector("initial_position_rad", initial_position_rad, arm.joint_names,
+                                lower=self._lower, upper=self._upper)
         m = len(self._pose_names)
 
         self._pose_desired_input = self.DeclareVectorInputPort("pose_desired", m)
@@ -338,27 +340,6 @@ class InverseKinematicsSystem(LeafSystem):
             "ik_status", 1, self._calc_ik_status, prerequisites_of_calc=flags_ticket)
         self._pose_commanded_output = self.DeclareStateOutputPort(
             "pose_commanded", self._pose_commanded_state)
-
-    def _validated_initial_position(self, initial_position_rad) -> np.ndarray:
-        n, names = self._arm.num_joints, self._arm.joint_names
-        try:
-            q0 = np.asarray(initial_position_rad, dtype=float)
-        except (TypeError, ValueError):
-            raise ValueError(
-                f"initial_position_rad = {initial_position_rad!r} must be {n} angles in rad"
-            ) from None
-        if q0.shape != (n,):
-            raise ValueError(
-                f"initial_position_rad = {initial_position_rad!r} has shape {q0.shape}; "
-                f"expected ({n},) for the joints {names!r}"
-            )
-        for i, value in enumerate(q0):
-            if not (math.isfinite(value) and self._lower[i] <= value <= self._upper[i]):
-                raise ValueError(
-                    f"initial_position_rad[{i}] (joint {names[i]!r}) = {float(value)!r} must be "
-                    f"finite and within [{self._lower[i]!r}, {self._upper[i]!r}] rad"
-                )
-        return q0
 
     # -- accessors ------------------------------------------------------------------------
 

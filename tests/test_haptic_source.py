@@ -55,7 +55,7 @@ def test_from_operator_session_lasa_and_synthetic():
     np.testing.assert_array_equal(dut.t_s, session.t_s)
     np.testing.assert_array_equal(dut.pose[:, :2], session.xy_m)
     np.testing.assert_array_equal(dut.pose[:, 2], 0.3)
-    assert dut.enable.dtype == bool and dut.enable.all()
+    assert dut.enable.all()
     assert dut.period_s == pytest.approx(0.01, rel=1e-12)
 
     synthetic = synthetic_operator_session(SyntheticOperatorConfig(duration_s=8.0))
@@ -123,16 +123,19 @@ def test_recording_rejects_bad_inputs(changes, match):
 # --- files ---
 
 
+def _assert_same_recording(actual, expected):
+    assert actual.pose_names == expected.pose_names
+    np.testing.assert_array_equal(actual.t_s, expected.t_s)
+    np.testing.assert_array_equal(actual.pose, expected.pose)
+    np.testing.assert_array_equal(actual.enable, expected.enable)
+
+
 @pytest.mark.parametrize("names", [PLANAR_POSE_NAMES, SPATIAL_POSE_NAMES])
 def test_csv_round_trip_is_exact(tmp_path, names):
     recording = _recording(names=names, seed=1, t0_s=12.5)
     path = tmp_path / "sub" / "haptic.csv"
     write_haptic_csv(path, recording)
-    dut = read_haptic_csv(path, expected_pose_names=names)
-    assert dut.pose_names == names
-    np.testing.assert_array_equal(dut.t_s, recording.t_s)
-    np.testing.assert_array_equal(dut.pose, recording.pose)
-    np.testing.assert_array_equal(dut.enable, recording.enable)
+    _assert_same_recording(read_haptic_csv(path, expected_pose_names=names), recording)
     assert path.read_text().splitlines()[0] == ",".join(["t", *names, "enable"])
 
 
@@ -141,11 +144,7 @@ def test_npz_round_trip_is_exact(tmp_path, names):
     recording = _recording(names=names, seed=2)
     path = tmp_path / "haptic.npz"
     write_haptic_npz(path, recording)
-    dut = read_haptic_npz(path, expected_pose_names=names)
-    assert dut.pose_names == names
-    np.testing.assert_array_equal(dut.t_s, recording.t_s)
-    np.testing.assert_array_equal(dut.pose, recording.pose)
-    np.testing.assert_array_equal(dut.enable, recording.enable)
+    _assert_same_recording(read_haptic_npz(path, expected_pose_names=names), recording)
 
 
 def test_files_without_enable_are_enabled_throughout(tmp_path):
@@ -158,7 +157,8 @@ def test_files_without_enable_are_enabled_throughout(tmp_path):
     npz_path = tmp_path / "no_enable.npz"
     np.savez(npz_path, t_s=dut.t_s, pose=dut.pose, pose_names=np.array(["x_m", "y_m"]))
     dut = read_haptic_npz(npz_path)
-    assert dut.enable.all() and dut.enable.shape == (3,)
+    assert dut.enable.all()
+    np.testing.assert_array_equal(dut.pose, [[0.1, 0.2], [0.3, 0.4], [0.5, 0.6]])
 
 
 GOOD_HEADER = "t,x_m,y_m,phi_rad,enable\n"
@@ -267,7 +267,9 @@ def test_port_contract():
     assert dut.get_pose_desired_output_port().size() == 6
     assert dut.get_enable_output_port().get_name() == "enable"
     assert dut.get_enable_output_port().size() == 1
-    assert dut.GetOutputPort("pose_desired") is not None
+    assert dut.GetOutputPort("pose_desired").get_index() == \
+        dut.get_pose_desired_output_port().get_index()
+    assert dut.GetOutputPort("enable").get_index() == dut.get_enable_output_port().get_index()
     assert dut.pose_names == SPATIAL_POSE_NAMES
     # Stateless: nothing in the context but time.
     context = dut.CreateDefaultContext()
