@@ -71,7 +71,7 @@ from telesmooth.smoothing.metrics import (
     smoothing_metrics,
     tracking_errors,
 )
-from telesmooth.smoothing.offline import HISTORY_LENGTH
+from telesmooth.smoothing.offline import with_rest_history
 from telesmooth.smoothing.validation import as_per_joint
 
 __all__ = [
@@ -138,6 +138,7 @@ class Comparison:
         q_original: z_i, the operator's samples, rad, (N, J).
         q_start: The robot's start pose, rad, (J,).
         duration_s: Simulated time of every run, s.
+        max_acceleration, max_jerk: a_max, j_max per joint (scenario.smoother), (J,).
         runs: method name → :class:`MethodRun`, in the requested order.
     """
 
@@ -148,6 +149,8 @@ class Comparison:
     q_original: np.ndarray
     q_start: np.ndarray
     duration_s: float
+    max_acceleration: np.ndarray
+    max_jerk: np.ndarray
     runs: dict
 
     def table(self) -> list[dict]:
@@ -294,8 +297,7 @@ def compare_methods(scenario: Scenario, methods=COMPARE_METHODS, *,
         e = tracking_errors(fk(estimate), measured)
         e_operator = tracking_errors(operator_tool, measured)
         # What the plant receives: start pose ×3, the packets, the last packet held.
-        received = np.vstack([np.tile(q_start, (HISTORY_LENGTH, 1)), packets,
-                              np.tile(packets[-1], (HISTORY_LENGTH, 1))])
+        received = with_rest_history(packets, q_start)
         metrics = smoothing_metrics(
             smoothed_positions=estimate, original_positions=z, dt_s=period,
             max_acceleration=a_max, max_jerk=j_max, smoothed_states=result.states,
@@ -340,4 +342,5 @@ def compare_methods(scenario: Scenario, methods=COMPARE_METHODS, *,
             f"P = {metrics['improvement_ratio_percent']:.1f} %")
     return Comparison(scenario=scenario, joint_names=names, period_s=period, t_s=t_s,
                       q_original=z, q_start=np.asarray(q_start, dtype=float).copy(),
-                      duration_s=duration, runs=runs)
+                      duration_s=duration, max_acceleration=a_max, max_jerk=j_max,
+                      runs=runs)

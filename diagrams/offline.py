@@ -52,7 +52,12 @@ from telesmooth.diagrams.teleoperation import (
 )
 from telesmooth.smoothing.metrics import VIOLATION_RTOL, finite_differences, limit_statistics
 from telesmooth.smoothing.model import JerkModel
-from telesmooth.smoothing.offline import HISTORY_LENGTH, OFFLINE_CONSTRAINTS, solve_offline_cks
+from telesmooth.smoothing.offline import (
+    HISTORY_LENGTH,
+    OFFLINE_CONSTRAINTS,
+    solve_offline_cks,
+    with_rest_history,
+)
 from telesmooth.smoothing.validation import as_per_joint
 from telesmooth.systems.flexible_arm import FlexibleJointArm
 from telesmooth.systems.planned_path_source import PlannedPathSource
@@ -464,8 +469,7 @@ def _validate(q, t_s, scenario: Scenario, *, start_position=None, check_fd_limit
                                         body_b=query.body_b))
 
     # Finite differences of what the plant receives: history in front, last pose held after.
-    extended = np.vstack([np.tile(start, (HISTORY_LENGTH, 1)), q,
-                          np.tile(q[-1], (HISTORY_LENGTH, 1))])
+    extended = with_rest_history(q, start)
     period = scenario.uplink.period_s
     smoother = scenario.smoother
     limits_by_order = {

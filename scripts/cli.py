@@ -14,7 +14,6 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
 
 from telesmooth.smoothing.methods import METHODS, SmoothingSettings, smooth_recording
 from telesmooth.smoothing.metrics import smoothing_metrics

@@ -22,9 +22,9 @@ import numpy as np
 
 from telesmooth.diagrams.comparison import COMPARE_METHODS, Comparison, compare_methods
 from telesmooth.diagrams.simulation import tool_positions
+from telesmooth.scripts.figures import FigureWriter
 from telesmooth.smoothing.metrics import finite_differences
-from telesmooth.smoothing.offline import HISTORY_LENGTH
-from telesmooth.smoothing.validation import as_per_joint
+from telesmooth.smoothing.offline import HISTORY_LENGTH, with_rest_history
 
 __all__ = ["table_markdown", "write_comparison_report"]
 
@@ -99,23 +99,15 @@ def _write_figures(out: Path, comparison: Comparison) -> list[tuple[str, str]]:
     n = len(names)
     period = comparison.period_s
     runs = comparison.runs
-    figures = []
+    writer = FigureWriter(out)
 
-    def save(fig, name, title):
-        fig.tight_layout()
-        fig.savefig(out / name, dpi=110)
-        plt.close(fig)
-        figures.append((title, name))
+    save = writer.save
 
-    a_max = as_per_joint("a_max", scenario.smoother.max_acceleration_rad_per_s2, n, names,
-                         allow_inf=True)
-    j_max = as_per_joint("j_max", scenario.smoother.max_jerk_rad_per_s3, n, names,
-                         allow_inf=True)
+    a_max, j_max = comparison.max_acceleration, comparison.max_jerk
     fig, axes = plt.subplots(len(runs), 2, figsize=(12, 1.7 * len(runs)), sharex=True,
                              sharey="col", squeeze=False)
     for row, (method, run) in enumerate(runs.items()):
-        received = np.vstack([np.tile(comparison.q_start, (HISTORY_LENGTH, 1)), run.packets,
-                              np.tile(run.packets[-1], (HISTORY_LENGTH, 1))])
+        received = with_rest_history(run.packets, comparison.q_start)
         for column, order, limit, label in ((0, 2, a_max, "|FD acc| / a_max"),
                                             (1, 3, j_max, "|FD jerk| / j_max")):
             ax = axes[row, column]
@@ -181,7 +173,7 @@ def _write_figures(out: Path, comparison: Comparison) -> list[tuple[str, str]]:
         if "limit" in title or "/" in title:
             ax.axvline(1.0, color="k", ls="--", lw=0.8)
     save(fig, "summary.png", "Summary per method")
-    return figures
+    return writer.figures
 
 
 def _report_text(comparison: Comparison, rows, figures) -> str:

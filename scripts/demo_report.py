@@ -23,6 +23,7 @@ import numpy as np
 
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_forward_kinematics
 from telesmooth.datasets.lasa import lasa_operator_session
+from telesmooth.scripts.figures import FigureWriter
 from telesmooth.smoothing.methods import SmoothingSettings, smooth_recording
 from telesmooth.smoothing.metrics import smoothing_metrics
 from telesmooth.smoothing.model import DEFAULT_DT_S
@@ -132,13 +133,9 @@ def _write_figures(out, t, z, results, names, forward_kinematics) -> list[tuple[
     shown = ("original", "kf-predictor", "bmfls", "online-cks (2nd operation)",
              "offline-cks (state)", "offline-cks (trajectory)")
     styles = dict(zip(shown, ("k-", "C3:", "C1--", "C2-", "C0-", "C4-.")))
-    figures = []
+    writer = FigureWriter(out)
 
-    def save(fig, name, title):
-        fig.tight_layout()
-        fig.savefig(out / name, dpi=110)
-        plt.close(fig)
-        figures.append((title, name))
+    save = writer.save
 
     fig, axes = plt.subplots(len(names), 1, figsize=(9, 2.4 * len(names)), sharex=True)
     for j, ax in enumerate(np.atleast_1d(axes)):
@@ -186,7 +183,7 @@ def _write_figures(out, t, z, results, names, forward_kinematics) -> list[tuple[
     ax.legend(fontsize=7, ncol=2)
     ax.set_title("Reduced-Q: σ per joint never increases; the 2nd operation starts where the 1st ended")
     save(fig, "sigma.png", "Reduced-Q σ over two operations")
-    return figures
+    return writer.figures
 
 
 def _report_text(summary, figures) -> str:

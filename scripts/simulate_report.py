@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from telesmooth.diagrams.simulation import SimulationRecord, run_metrics, simulate, tool_positions
+from telesmooth.scripts.figures import FigureWriter
 from telesmooth.smoothing.metrics import finite_differences
 from telesmooth.smoothing.validation import as_per_joint
 
@@ -71,13 +72,9 @@ def _write_figures(out: Path, record: SimulationRecord, metrics: dict) -> list[t
     n = record.num_joints
     delay = scenario.fifo.delay_s
     period = scenario.uplink.period_s
-    figures = []
+    writer = FigureWriter(out)
 
-    def save(fig, name, title):
-        fig.tight_layout()
-        fig.savefig(out / name, dpi=110)
-        plt.close(fig)
-        figures.append((title, name))
+    save = writer.save
 
     sent = record.q_sent
     velocity = record.packet_state[:, n:2 * n]
@@ -157,7 +154,7 @@ def _write_figures(out: Path, record: SimulationRecord, metrics: dict) -> list[t
     axes[1].set_xlabel("time [s]")
     axes[1].legend(fontsize=7)
     save(fig, "sigma_collision.png", "Reduced-Q σ per joint; pre-simulator distance and holds")
-    return figures
+    return writer.figures
 
 
 def _report_text(metrics: dict, figures) -> str:

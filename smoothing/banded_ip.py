@@ -148,7 +148,8 @@ class _Problem:
         self.abs_f = abs(self.f)
         pattern = (abs(self.normal) + abs(self.f.T) @ abs(self.f)).tocoo()
         self.half_bandwidth = int(np.max(np.abs(pattern.col - pattern.row))) if pattern.nnz else 0
-        self._prepare_cholesky()
+        if options.linear_solver != "qr":
+            self._prepare_cholesky()
         self.route = self._choose_route(options.linear_solver)
         if self.route == "qr":
             self._prepare_qr()
@@ -228,25 +229,18 @@ class _Problem:
         # Fixed variables: their columns dropped from every row; identity rows added per block.
         on_fixed = self.fixed[rows.indices]
         window[row_of_entry[on_fixed], (rows.indices - 4 * block[row_of_entry])[on_fixed]] = 0.0
-        self.qr_is_f = np.zeros(num_rows, dtype=bool)
-        # Which rows are F rows (to be weighted by √D): identify by position in the stack.
-        a_rows = int(np.count_nonzero(np.diff(self.a.indptr) > 0))
-        self.qr_is_f[a_rows:] = True
+        # Row i of the stack is row source[i] of A (is_f False) or of F (is_f True).
+        a_nonempty = np.flatnonzero(np.diff(self.a.indptr) > 0)
         f_nonempty = np.flatnonzero(np.diff(self.f.indptr) > 0)
-        self.qr_f_index = np.full(num_rows, -1)
-        self.qr_f_index[a_rows:] = f_nonempty
+        is_f = np.arange(num_rows) >= a_nonempty.size
+        source = np.concatenate([a_nonempty, f_nonempty])
         order = np.argsort(block, kind="stable")
         self.qr_window = window[order]
-        self.qr_block = block[order]
-        self.qr_is_f = self.qr_is_f[order]
-        self.qr_f_index = self.qr_f_index[order]
-        self.qr_a_row = np.full(num_rows, -1)
-        a_nonempty = np.flatnonzero(np.diff(self.a.indptr) > 0)
-        a_positions = np.full(num_rows, -1)
-        a_positions[:a_rows] = a_nonempty
-        self.qr_a_row = a_positions[order]
+        self.qr_is_f = is_f[order]
+        self.qr_a_row = np.where(is_f, -1, source)[order]
+        self.qr_f_index = np.where(is_f, source, -1)[order]
         num_blocks = self.n // 4
-        self.qr_starts = np.searchsorted(self.qr_block, np.arange(num_blocks + 1))
+        self.qr_starts = np.searchsorted(block[order], np.arange(num_blocks + 1))
 
     def factorize(self, weights):
         """Factorises AᵀA + Fᵀ diag(weights) F; returns solve(rhs_a, rhs_f) → Δ (n,) with
@@ -255,12 +249,15 @@ class _Problem:
             try:
                 return self._cholesky_solver(weights)
             except LinAlgError:
-                # Late in the iterations λ/s of the active rows grows without bound and the
-                # normal equations lose definiteness in floating point; the square-root route
-                # does not form them. Continue with it.
-                self.route = "cholesky+qr"
-                self._prepare_qr()
+                self._switch_to_qr()
         return lambda rhs_a, rhs_f: self._solve_qr(weights, rhs_a, rhs_f)
+
+    def _switch_to_qr(self) -> None:
+        """Late in the iterations λ/s of the active rows grows without bound and the normal
+        equations lose definiteness in floating point; the square-root route does not form
+        them. The rest of the solve continues with it."""
+        self.route = "cholesky+qr"
+        self._prepare_qr()
 
     def _cholesky_solver(self, weights):
         band = self._band(weights)
@@ -426,8 +423,7 @@ class _Problem:
                         if self.route != "cholesky":
                             raise
                         # The regularised factor could not reach this right-hand side.
-                        self.route = "cholesky+qr"
-                        self._prepare_qr()
+                        self._switch_to_qr()
                         dy = self._solve_qr(weights, -residual_a, rhs_f)
                     dfy = self.f @ dy
                     ds_u = -r_pu - dfy

@@ -128,6 +128,17 @@ def finite_difference_operator(
     return a[keep], c[keep]
 
 
+def with_rest_history(positions, q_start, *, hold_at_end: int = HISTORY_LENGTH) -> np.ndarray:
+    """[q_start × HISTORY_LENGTH, p_0 … p_{N−1}, p_{N−1} × hold_at_end] along axis 0: the
+    position sequence a robot at rest at ``q_start`` receives when the last command is held
+    (the sequence whose finite differences the trajectory mode limits). ``positions`` is
+    (N,) or (N, J); ``q_start`` a scalar or (J,)."""
+    p = np.asarray(positions, dtype=float)
+    start = np.broadcast_to(np.asarray(q_start, dtype=float), p.shape[1:])
+    return np.concatenate([np.repeat(start[None], HISTORY_LENGTH, axis=0), p,
+                           np.repeat(p[-1:], hold_at_end, axis=0)])
+
+
 def _block_hessian(pair_hessian: np.ndarray, num_pairs: int) -> np.ndarray:
     """Hessian over states (y_{s−1}, …, y_{s+B−1}) for B = num_pairs process terms plus the
     measurement terms of the B states the block owns (all but the first)."""
@@ -342,9 +353,8 @@ def _limit_excess(states, q_start, dt, acc, jerk, vel, constraint, rest_at_end) 
     if constraint in ("state", "both"):
         excess = max(excess, worst(states[:, 2], acc), worst(states[:, 3], jerk))
     if constraint in ("trajectory", "both"):
-        p = states[:, 0]
-        tail = np.repeat(p[-1:], HISTORY_LENGTH) if rest_at_end else np.zeros(0)
-        extended = np.concatenate([np.full(HISTORY_LENGTH, q_start), p, tail])
+        extended = with_rest_history(states[:, 0], q_start,
+                                     hold_at_end=HISTORY_LENGTH if rest_at_end else 0)
         for order, limit in ((1, vel), (2, acc), (3, jerk)):
             excess = max(excess, worst(np.diff(extended, n=order) / dt**order, limit))
     return max(excess, 0.0)

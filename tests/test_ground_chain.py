@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
+from pydrake.systems.primitives import LogVectorOutput
 
 from telesmooth.smoothing.fixed_lag import FixedLagSmoother
 from telesmooth.smoothing.model import JerkModel

@@ -6,7 +6,6 @@ from pydrake.lcm import DrakeLcm
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
-from pydrake.systems.primitives import ConstantVectorSource
 
 from telesmooth.diagrams.channels import TELEOP_JOINT_COMMAND
 from telesmooth.lcm_types import (

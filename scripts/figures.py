@@ -1,0 +1,25 @@
+"""Saving report figures: one place for the format every report uses."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["FigureWriter"]
+
+
+class FigureWriter:
+    """Writes figures into a report folder and remembers (title, file name) in order."""
+
+    def __init__(self, out: Path, *, dpi: int = 110):
+        self.out = Path(out)
+        self.dpi = dpi
+        self.figures: list[tuple[str, str]] = []
+
+    def save(self, fig, name: str, title: str) -> None:
+        """Lays out, writes ``out/name`` and closes ``fig``."""
+        import matplotlib.pyplot as plt
+
+        fig.tight_layout()
+        fig.savefig(self.out / name, dpi=self.dpi)
+        plt.close(fig)
+        self.figures.append((title, name))
