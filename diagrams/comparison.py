@@ -33,6 +33,8 @@ Metrics per method (index i = operator sample, 0 ≤ i < N):
   after the operator stopped); ``settling_time_s``: from the operator's last sample until the
   tool stays within :data:`SETTLED_TOLERANCE_M` of its final position (includes the method's
   delay).
+* ``latency_s``: the shift τ that best aligns the tool track with the operator's intent
+  (:func:`response_latency`); ``added_latency_s`` = τ − τ of the original.
 * ``presim_violations``: samples the pre-simulator would reject (collision within the safety
   margin, joint limits). The comparison is a simulation, so they are reported, not enforced.
 
@@ -63,7 +65,7 @@ from telesmooth.diagrams.offline import (
 from telesmooth.diagrams.scenario import Scenario, make_haptic_recording
 from telesmooth.diagrams.simulation import sample_at, tool_positions
 from telesmooth.diagrams.teleoperation import scenario_smoother_config
-from telesmooth.smoothing.methods import FIXED_LAG_METHODS, SmoothingSettings, smooth_recording
+from telesmooth.smoothing.methods import SmoothingSettings, smooth_recording
 from telesmooth.smoothing.metrics import (
     finite_differences,
     improvement_ratio,
@@ -77,17 +79,27 @@ from telesmooth.smoothing.validation import as_per_joint
 __all__ = [
     "COMPARE_METHODS",
     "Comparison",
+    "ComparisonSetup",
+    "OperatorSamples",
     "SETTLED_TOLERANCE_M",
     "MethodRun",
     "compare_methods",
     "method_settings",
+    "operator_samples",
+    "prepare_comparison",
+    "response_latency",
+    "run_method",
+    "set_improvement_ratios",
 ]
 
 COMPARE_METHODS = ("original", "kf", "kf-predictor", "offline-ks", "offline-cks",
-                   "offline-cks-trajectory", "bmfls", "online-cks")
+                   "offline-cks-trajectory", "bmfls", "online-cks", "ruckig")
 """Every method :func:`compare_methods` knows, in the order of the paper's Table 2."""
 
 _REFERENCE = "original"
+
+_MAX_LATENCY_S = 5.0
+"""The longest response latency :func:`response_latency` looks for, s."""
 
 SETTLED_TOLERANCE_M = 1e-4
 """The tool counts as settled once it stays within this distance of its final position, m."""
@@ -174,6 +186,7 @@ class Comparison:
                 "improvement_ratio_percent": m["improvement_ratio_percent"],
                 "residual_motion_m": m["residual_motion_m"],
                 "settling_time_s": m["settling_time_s"],
+                "added_latency_s": m["added_latency_s"],
                 "presim_violations": m["presim_violations"]["total"],
             })
         return rows
@@ -205,6 +218,265 @@ def _settle_ticks(scenario: Scenario) -> int:
     return math.ceil(scenario.settle_s / scenario.uplink.period_s - 1e-9)
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class ComparisonSetup:
+    """What every method of one scenario shares: the operator's samples, limits and plant run.
+
+    Built once per scenario by :func:`prepare_comparison`; :func:`run_method` plays one method.
+
+    Attributes:
+        scenario: The scenario.
+        joint_names: Joint order, (J,).
+        period_s: Δt, s.
+        t_s: Operator sample times t_i, s, (N,) (the recording and ``settle_s`` of holding).
+        q_original: z_i, rad, (N, J).
+        q_start: The robot's start pose, rad, (J,).
+        num_operator_samples: Samples that carry the recording (the rest hold its last pose).
+        duration_s: Simulated time of every run (long enough for the fixed-lag delay), s.
+        ramp_s: The onboard interpolator's ramp (0 for zero-order hold), s.
+        max_acceleration, max_jerk: a_max, j_max per joint, (J,).
+        operator_tool_m: FK(z_i), m, (N, 3).
+        collision_model: The pre-simulator's collision model (violations are reported).
+    """
+
+    scenario: Scenario
+    joint_names: tuple
+    period_s: float
+    t_s: np.ndarray
+    q_original: np.ndarray
+    q_start: np.ndarray
+    num_operator_samples: int
+    duration_s: float
+    ramp_s: float
+    max_acceleration: np.ndarray
+    max_jerk: np.ndarray
+    operator_tool_m: np.ndarray
+    collision_model: ArmCollisionModel
+
+    def fk(self, q) -> np.ndarray:
+        """Tool positions of joint positions ``q`` (…, J), m."""
+        return tool_positions(self.scenario, q)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class OperatorSamples:
+    """The operator's joint samples at the uplink rate (plain arrays; cheap to ship).
+
+    Attributes:
+        t_s: Sample times, s, (N,).
+        q: z_i, rad, (N, J): the recording through the ground station's IK, then the last pose
+            held for ``scenario.settle_s``.
+        q_start: The robot's start pose, rad, (J,).
+        num_operator_samples: Samples that carry the recording.
+    """
+
+    t_s: np.ndarray
+    q: np.ndarray
+    q_start: np.ndarray
+    num_operator_samples: int
+
+
+def operator_samples(scenario: Scenario) -> OperatorSamples:
+    """Runs the scenario's recording through the ground station's IK (one sample per tick).
+
+    Raises:
+        ValueError: A scenario without a recording (``haptic.source = 'lcm'``).
+    """
+    recording = make_haptic_recording(scenario)
+    if recording is None:
+        raise ValueError("compare needs a recorded session; haptic.source = 'lcm' is a live "
+                         "device")
+    # The operator's samples, then the operator holding the last pose while the robot settles.
+    num_operator_samples = recording_ticks(scenario, recording)
+    t_s, z, q_start, _ = joint_targets_at_uplink_rate(
+        scenario, num_ticks=num_operator_samples + _settle_ticks(scenario))
+    return OperatorSamples(t_s=t_s, q=z, q_start=np.asarray(q_start, dtype=float).copy(),
+                           num_operator_samples=num_operator_samples)
+
+
+def prepare_comparison(scenario: Scenario,
+                       samples: OperatorSamples | None = None) -> ComparisonSetup:
+    """The operator's samples at the uplink rate and everything the methods share.
+
+    Args:
+        scenario: The scenario.
+        samples: Its :func:`operator_samples`, if already computed.
+
+    Raises:
+        ValueError: A scenario without a recording (``haptic.source = 'lcm'``).
+    """
+    if samples is None:
+        samples = operator_samples(scenario)
+    arm = scenario.arm_description
+    names = arm.joint_names
+    n = arm.num_joints
+    period = scenario.uplink.period_s
+    t_s, z, q_start = samples.t_s, samples.q, samples.q_start
+    num_operator_samples = samples.num_operator_samples
+    lag = scenario_smoother_config(scenario).lag
+    ramp = (scenario.onboard.interpolator.ramp_duration_s
+            if scenario.onboard.interpolator.interpolation == "linear" else 0.0)
+    # Every run: the last packet that carries an operator sample (after the fixed-lag delay),
+    # its ramp, and the settling.
+    duration = (z.shape[0] - 1 + lag) * period + ramp + max(period, scenario.settle_s)
+    a_max = as_per_joint("max_acceleration_rad_per_s2",
+                         scenario.smoother.max_acceleration_rad_per_s2, n, names, allow_inf=True)
+    j_max = as_per_joint("max_jerk_rad_per_s3", scenario.smoother.max_jerk_rad_per_s3, n,
+                         names, allow_inf=True)
+    collision_model = ArmCollisionModel(
+        arm, scenario.workspace_or_default,
+        distance_horizon_m=scenario.collision_checker.distance_horizon_m)
+    return ComparisonSetup(
+        scenario=scenario, joint_names=names, period_s=period, t_s=t_s, q_original=z,
+        q_start=q_start, num_operator_samples=num_operator_samples, duration_s=duration,
+        ramp_s=ramp, max_acceleration=a_max, max_jerk=j_max, operator_tool_m=tool_positions(scenario, z),
+        collision_model=collision_model)
+
+
+def response_latency(operator_tool_m, t_s, tracker_t_s, tool_position_m, *,
+                     max_latency_s: float) -> float:
+    """The time shift τ ≥ 0 that best aligns the tool with the operator's intent, s.
+
+    τ minimises mean_i ‖FK(z_i) − x^A(t_i + τ)‖ over τ on the tracker's clock (its sample
+    period is the resolution), 0 ≤ τ ≤ ``max_latency_s``, with x^A linearly interpolated.
+    Only samples with t_i + ``max_latency_s`` inside the tracker's record count, so every τ is
+    scored on the same samples.
+    """
+    t_s = np.asarray(t_s, dtype=float)
+    tracker_t_s = np.asarray(tracker_t_s, dtype=float)
+    step = float(np.median(np.diff(tracker_t_s)))
+    shifts = np.arange(0.0, max_latency_s + 0.5 * step, step)
+    keep = t_s + max_latency_s <= tracker_t_s[-1]
+    if not keep.any():
+        raise ValueError("the tracker record is shorter than max_latency_s after the first "
+                         "operator sample")
+    times = t_s[keep][None, :] + shifts[:, None]
+    measured = np.stack([np.interp(times, tracker_t_s, tool_position_m[:, axis])
+                         for axis in range(tool_position_m.shape[1])], axis=-1)
+    cost = np.linalg.norm(measured - operator_tool_m[keep][None, :, :], axis=-1).mean(axis=1)
+    return float(shifts[int(np.argmin(cost))])
+
+
+def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettings | None = None,
+               base_method: str | None = None, label: str | None = None) -> MethodRun:
+    """Smooths the operator's samples with one method and plays the packets through the plant.
+
+    Args:
+        setup: From :func:`prepare_comparison`.
+        method: A name of :data:`COMPARE_METHODS` (its settings come from the scenario).
+        settings, base_method: Override the ``smooth_recording`` settings and method (e.g. a
+            sensitivity study of Online-CKS); both default to :func:`method_settings`.
+        label: The run's name (default ``method``).
+
+    Returns:
+        The run; ``metrics["improvement_ratio_percent"]`` is NaN until the caller sets it
+        against the original (see :func:`set_improvement_ratios`).
+
+    Raises:
+        RuntimeError: The method failed to produce a command sequence (the message names it).
+    """
+    scenario = setup.scenario
+    names = setup.joint_names
+    n = len(names)
+    period = setup.period_s
+    z = setup.q_original
+    q_start = setup.q_start
+    num_samples = z.shape[0]
+    ramp = setup.ramp_s
+    label = label or method
+    started = time.perf_counter()
+    default_method, default_settings = method_settings(scenario, method)
+    base_method = base_method or default_method
+    settings = settings or default_settings
+    try:
+        result = smooth_recording(z, period, base_method, settings, joint_names=names)
+    except RuntimeError as error:
+        raise RuntimeError(f"method {label!r} failed: {error}") from error
+    estimate = result.positions
+    states = result.states if result.states is not None else np.concatenate(
+        [estimate[:, :, None], np.zeros(estimate.shape + (3,))], axis=2)
+    delay = round(result.sent_delay_s / period)
+    rest = np.zeros((delay, n, 4))
+    rest[:, :, 0] = q_start
+    packet_states = np.concatenate([rest, states], axis=0)
+    packets = packet_states[:, :, 0]
+    smoothed = time.perf_counter()
+
+    builder = DiagramBuilder()
+    _, _, _, loggers = AddPathPlayback(builder, scenario, packets, states=packet_states,
+                                       q_start=q_start)
+    diagram = builder.Build()
+    diagram.set_name(f"compare_{label}")
+    simulator = Simulator(diagram)
+    simulator.AdvanceTo(setup.duration_s)
+    logs = copy_logs(loggers, simulator.get_context())
+    simulated = time.perf_counter()
+
+    fk = setup.fk
+    tracker_t = logs["position_measured"].t_s
+    tool = logs["position_measured"].values
+    response_t = (np.arange(num_samples) + delay) * period + ramp
+    measured = sample_at(tracker_t, tool, response_t)
+    e = tracking_errors(fk(estimate), measured)
+    e_operator = tracking_errors(setup.operator_tool_m, measured)
+    # What the plant receives: start pose ×3, the packets, the last packet held.
+    received = with_rest_history(packets, q_start)
+    a_max, j_max = setup.max_acceleration, setup.max_jerk
+    metrics = smoothing_metrics(
+        smoothed_positions=estimate, original_positions=z, dt_s=period,
+        max_acceleration=a_max, max_jerk=j_max, smoothed_states=result.states,
+        forward_kinematics=fk, joint_names=names)
+    metrics["fd_acceleration"] = limit_statistics(finite_differences(received, period, 2),
+                                                  a_max)
+    metrics["fd_jerk"] = limit_statistics(finite_differences(received, period, 3), j_max)
+    metrics["response_error_m"] = {"mean": float(e.mean()), "max": float(e.max()),
+                                   "sum": float(e.sum())}
+    metrics["operator_error_m"] = {"mean": float(e_operator.mean()),
+                                   "max": float(e_operator.max())}
+    metrics["improvement_ratio_percent"] = math.nan
+    # After the operator stops: the tool's motion about its final position, from when the
+    # packet carrying the operator's last sample has been reached.
+    num_operator_samples = setup.num_operator_samples
+    distance_to_final = np.linalg.norm(tool - fk(packets[-1]), axis=-1)
+    after = tracker_t >= (num_operator_samples - 1 + delay) * period + ramp
+    metrics["residual_motion_m"] = float(distance_to_final[after].max()) \
+        if after.any() else math.nan
+    outside = np.flatnonzero(distance_to_final > SETTLED_TOLERANCE_M)
+    metrics["settling_time_s"] = (
+        0.0 if outside.size == 0 else
+        max(0.0, float(tracker_t[outside[-1]]) - (num_operator_samples - 1) * period))
+    metrics["latency_s"] = response_latency(
+        setup.operator_tool_m, setup.t_s, tracker_t, tool,
+        max_latency_s=min(_MAX_LATENCY_S, float(tracker_t[-1] - setup.t_s[0]) / 2))
+    deflection = logs["q_link"].values - logs["q_motor"].values
+    metrics["link_deflection_max_abs_rad"] = np.abs(deflection).max(axis=0).tolist()
+    violations = validate_joint_path(packets, period * np.arange(len(packets)), scenario,
+                                     start_position=q_start, check_fd_limits=False,
+                                     collision_model=setup.collision_model)
+    kinds = {kind: sum(v.kind == kind for v in violations)
+             for kind in ("non_finite", "joint_limit", "collision")}
+    metrics["presim_violations"] = {**kinds, "total": len(violations)}
+    metrics["delay_s"] = delay * period
+    metrics["details"] = result.details
+    timings = {"smooth": smoothed - started, "simulate": simulated - smoothed}
+    metrics["timings_s"] = timings
+    return MethodRun(
+        method=label, delay_ticks=delay, estimate=estimate, packets=packets,
+        t_s=period * np.arange(len(packets)), tracker_t_s=tracker_t, tool_position_m=tool,
+        q_link=logs["q_link"].values, q_motor=logs["q_motor"].values, response_error_m=e,
+        operator_error_m=e_operator, metrics=metrics, timings_s=timings)
+
+
+def set_improvement_ratios(runs: dict, reference: str = _REFERENCE) -> None:
+    """Sets P of every run in ``runs`` (name → MethodRun) against ``runs[reference]``."""
+    e_org = runs[reference].response_error_m
+    for run in runs.values():
+        run.metrics["improvement_ratio_percent"] = improvement_ratio(e_org,
+                                                                     run.response_error_m)
+        run.metrics["added_latency_s"] = (run.metrics["latency_s"]
+                                          - runs[reference].metrics["latency_s"])
+
+
 def compare_methods(scenario: Scenario, methods=COMPARE_METHODS, *,
                     progress: Callable[[str], None] | None = None) -> Comparison:
     """Runs each method on the scenario's recorded session through the same plant.
@@ -230,117 +502,17 @@ def compare_methods(scenario: Scenario, methods=COMPARE_METHODS, *,
         raise ValueError(f"methods = {methods!r} repeats a method")
     methods = (_REFERENCE,) + tuple(m for m in methods if m != _REFERENCE)
     say = progress or (lambda message: None)
-    recording = make_haptic_recording(scenario)
-    if recording is None:
-        raise ValueError("compare needs a recorded session; haptic.source = 'lcm' is a live "
-                         "device")
-
-    arm = scenario.arm_description
-    names = arm.joint_names
-    n = arm.num_joints
-    period = scenario.uplink.period_s
-    # The operator's samples, then the operator holding the last pose while the robot settles.
-    num_operator_samples = recording_ticks(scenario, recording)
-    t_s, z, q_start, _ = joint_targets_at_uplink_rate(
-        scenario, num_ticks=num_operator_samples + _settle_ticks(scenario))
-    num_samples = z.shape[0]
-    lag = scenario_smoother_config(scenario).lag
-    max_delay = lag if any(m in FIXED_LAG_METHODS for m in methods) else 0
-    ramp = (scenario.onboard.interpolator.ramp_duration_s
-            if scenario.onboard.interpolator.interpolation == "linear" else 0.0)
-    # Every run: the last packet that carries an operator sample, its ramp, and the settling.
-    duration = (num_samples - 1 + max_delay) * period + ramp + max(period, scenario.settle_s)
-    a_max = as_per_joint("max_acceleration_rad_per_s2",
-                         scenario.smoother.max_acceleration_rad_per_s2, n, names, allow_inf=True)
-    j_max = as_per_joint("max_jerk_rad_per_s3", scenario.smoother.max_jerk_rad_per_s3, n,
-                         names, allow_inf=True)
-    collision_model = ArmCollisionModel(
-        arm, scenario.workspace_or_default,
-        distance_horizon_m=scenario.collision_checker.distance_horizon_m)
-    operator_tool = tool_positions(scenario, z)
-
-    def fk(q):
-        return tool_positions(scenario, q)
-
+    setup = prepare_comparison(scenario)
     runs = {}
     for number, method in enumerate(methods, start=1):
-        started = time.perf_counter()
-        base_method, settings = method_settings(scenario, method)
-        try:
-            result = smooth_recording(z, period, base_method, settings, joint_names=names)
-        except RuntimeError as error:
-            raise RuntimeError(f"method {method!r} failed: {error}") from error
-        estimate = result.positions
-        states = result.states if result.states is not None else np.concatenate(
-            [estimate[:, :, None], np.zeros(estimate.shape + (3,))], axis=2)
-        delay = round(result.sent_delay_s / period)
-        rest = np.zeros((delay, n, 4))
-        rest[:, :, 0] = q_start
-        packet_states = np.concatenate([rest, states], axis=0)
-        packets = packet_states[:, :, 0]
-        smoothed = time.perf_counter()
-
-        builder = DiagramBuilder()
-        _, _, _, loggers = AddPathPlayback(builder, scenario, packets, states=packet_states,
-                                           q_start=q_start)
-        diagram = builder.Build()
-        diagram.set_name(f"compare_{method}")
-        simulator = Simulator(diagram)
-        simulator.AdvanceTo(duration)
-        logs = copy_logs(loggers, simulator.get_context())
-        simulated = time.perf_counter()
-
-        tracker_t = logs["position_measured"].t_s
-        tool = logs["position_measured"].values
-        response_t = (np.arange(num_samples) + delay) * period + ramp
-        measured = sample_at(tracker_t, tool, response_t)
-        e = tracking_errors(fk(estimate), measured)
-        e_operator = tracking_errors(operator_tool, measured)
-        # What the plant receives: start pose ×3, the packets, the last packet held.
-        received = with_rest_history(packets, q_start)
-        metrics = smoothing_metrics(
-            smoothed_positions=estimate, original_positions=z, dt_s=period,
-            max_acceleration=a_max, max_jerk=j_max, smoothed_states=result.states,
-            forward_kinematics=fk, joint_names=names)
-        metrics["fd_acceleration"] = limit_statistics(finite_differences(received, period, 2),
-                                                      a_max)
-        metrics["fd_jerk"] = limit_statistics(finite_differences(received, period, 3), j_max)
-        metrics["response_error_m"] = {"mean": float(e.mean()), "max": float(e.max())}
-        metrics["operator_error_m"] = {"mean": float(e_operator.mean()),
-                                       "max": float(e_operator.max())}
-        reference = runs[_REFERENCE].response_error_m if runs else e
-        metrics["improvement_ratio_percent"] = improvement_ratio(reference, e)
-        # After the operator stops: the tool's motion about its final position, from when the
-        # packet carrying the operator's last sample has been reached.
-        distance_to_final = np.linalg.norm(tool - fk(packets[-1]), axis=-1)
-        after = tracker_t >= (num_operator_samples - 1 + delay) * period + ramp
-        metrics["residual_motion_m"] = float(distance_to_final[after].max()) \
-            if after.any() else math.nan
-        outside = np.flatnonzero(distance_to_final > SETTLED_TOLERANCE_M)
-        metrics["settling_time_s"] = (
-            0.0 if outside.size == 0 else
-            max(0.0, float(tracker_t[outside[-1]]) - (num_operator_samples - 1) * period))
-        deflection = logs["q_link"].values - logs["q_motor"].values
-        metrics["link_deflection_max_abs_rad"] = np.abs(deflection).max(axis=0).tolist()
-        violations = validate_joint_path(packets, period * np.arange(len(packets)), scenario,
-                                         start_position=q_start, check_fd_limits=False,
-                                         collision_model=collision_model)
-        kinds = {kind: sum(v.kind == kind for v in violations)
-                 for kind in ("non_finite", "joint_limit", "collision")}
-        metrics["presim_violations"] = {**kinds, "total": len(violations)}
-        metrics["delay_s"] = delay * period
-        metrics["details"] = result.details
-        timings = {"smooth": smoothed - started, "simulate": simulated - smoothed}
-        metrics["timings_s"] = timings
-        runs[method] = MethodRun(
-            method=method, delay_ticks=delay, estimate=estimate, packets=packets,
-            t_s=period * np.arange(len(packets)), tracker_t_s=tracker_t, tool_position_m=tool,
-            q_link=logs["q_link"].values, q_motor=logs["q_motor"].values, response_error_m=e,
-            operator_error_m=e_operator, metrics=metrics, timings_s=timings)
-        say(f"[{number}/{len(methods)}] {method}: smoothed in {timings['smooth']:.2f} s, "
-            f"{duration:.1f} s simulated in {timings['simulate']:.1f} s; "
-            f"P = {metrics['improvement_ratio_percent']:.1f} %")
-    return Comparison(scenario=scenario, joint_names=names, period_s=period, t_s=t_s,
-                      q_original=z, q_start=np.asarray(q_start, dtype=float).copy(),
-                      duration_s=duration, max_acceleration=a_max, max_jerk=j_max,
+        run = run_method(setup, method)
+        runs[method] = run
+        set_improvement_ratios({_REFERENCE: runs[_REFERENCE], method: run})
+        say(f"[{number}/{len(methods)}] {method}: smoothed in {run.timings_s['smooth']:.2f} s, "
+            f"{setup.duration_s:.1f} s simulated in {run.timings_s['simulate']:.1f} s; "
+            f"P = {run.metrics['improvement_ratio_percent']:.1f} %")
+    return Comparison(scenario=scenario, joint_names=setup.joint_names,
+                      period_s=setup.period_s, t_s=setup.t_s, q_original=setup.q_original,
+                      q_start=setup.q_start, duration_s=setup.duration_s,
+                      max_acceleration=setup.max_acceleration, max_jerk=setup.max_jerk,
                       runs=runs)

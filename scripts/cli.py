@@ -253,6 +253,88 @@ def run_compare(args) -> int:
     return 0
 
 
+def _add_experiment_parser(subparsers) -> None:
+    from telesmooth.diagrams.experiment import EXPERIMENT_METHODS, ExperimentConfig
+
+    defaults = ExperimentConfig()
+    p = subparsers.add_parser(
+        "experiment",
+        help="the paper's experiment on the LASA demonstrations: every method, the claims "
+             "C1-C8, the Online-CKS sensitivity; on a Dask cluster",
+    )
+    _add_scenario_arguments(p)
+    p.add_argument("--out", type=Path, default=Path("out/experiment"), help="report folder")
+    p.add_argument("--shapes", default="all",
+                   help="comma list of LASA shapes, or 'all' (default: all 30)")
+    p.add_argument("--demos", default="0",
+                   help="demonstrations of each shape: comma list of 0-6, or 'all' "
+                        "(default 0; 'all' is the full grid of 210)")
+    p.add_argument("--methods", default=",".join(EXPERIMENT_METHODS),
+                   help="comma list of methods (default all: " + ",".join(EXPERIMENT_METHODS)
+                   + ")")
+    p.add_argument("--sensitivity-shapes", default=",".join(defaults.sensitivity_shapes),
+                   help="shapes of the Online-CKS sensitivity study ('none' to skip)")
+    p.add_argument("--c8-shapes", default="all",
+                   help="shapes of the C8 study, each over its 7 demonstrations "
+                        "('none' to skip; default all)")
+    p.add_argument("--plant-step", type=float, default=defaults.plant_time_step_s,
+                   help=f"plant time step in s (default {defaults.plant_time_step_s})")
+    p.add_argument("--settle", type=float, default=defaults.settle_s,
+                   help=f"simulated seconds after the operator stops (default "
+                        f"{defaults.settle_s})")
+    p.add_argument("--workers", type=int, default=2,
+                   help="worker processes of the local Dask cluster (default 2; 0 = run in "
+                        "this process without Dask)")
+    p.add_argument("--scheduler", default=None,
+                   help="address of an existing Dask scheduler (tcp://host:port) instead of "
+                        "a local cluster")
+    p.add_argument("--quick", action="store_true",
+                   help="a small grid (shapes Angle,CShape; sensitivity and C8 on Angle) to "
+                        "check the set-up in a few minutes")
+    p.set_defaults(handler=run_experiment_command)
+
+
+def _shape_list(text: str, option: str) -> tuple:
+    from telesmooth.datasets.lasa import LASA_SHAPES
+
+    text = text.strip()
+    if text == "all":
+        return LASA_SHAPES
+    if text in ("none", ""):
+        return ()
+    shapes = tuple(part.strip() for part in text.split(",") if part.strip())
+    unknown = [s for s in shapes if s not in LASA_SHAPES]
+    if unknown:
+        raise ValueError(f"{option} = {text!r}: unknown shape(s) {unknown}; the shapes are "
+                         f"{', '.join(LASA_SHAPES)}")
+    return shapes
+
+
+def run_experiment_command(args) -> int:
+    from telesmooth.diagrams.experiment import ExperimentConfig
+    from telesmooth.scripts.experiment_report import parse_demos, write_experiment_report
+
+    base = _load_scenario(args)
+    if args.quick:
+        shapes, sensitivity, c8 = ("Angle", "CShape"), ("Angle",), ("Angle",)
+    else:
+        shapes = _shape_list(args.shapes, "--shapes")
+        sensitivity = _shape_list(args.sensitivity_shapes, "--sensitivity-shapes")
+        c8 = _shape_list(args.c8_shapes, "--c8-shapes")
+    if not shapes:
+        raise ValueError("--shapes names no shape")
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    config = ExperimentConfig(shapes=shapes, demos=parse_demos(args.demos), methods=methods,
+                              plant_time_step_s=args.plant_step, settle_s=args.settle,
+                              sensitivity_shapes=sensitivity, c8_shapes=c8)
+    if args.workers < 0:
+        raise ValueError(f"--workers = {args.workers} must be >= 0")
+    report = write_experiment_report(args.out, base, config, workers=args.workers,
+                                     scheduler=args.scheduler)
+    print(f"report: {report}")
+    return 0
+
+
 def _add_process_parsers(subparsers) -> None:
     from telesmooth.diagrams.channels import DEFAULT_LCM_URL
 
@@ -299,6 +381,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_demo_parser(subparsers)
     _add_simulate_parser(subparsers)
     _add_compare_parser(subparsers)
+    _add_experiment_parser(subparsers)
     _add_process_parsers(subparsers)
     return parser
 

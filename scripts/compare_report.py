@@ -48,6 +48,7 @@ _COLUMNS = (
     ("vs operator mean [mm]", "operator_error_mean_m", "×1000{:.3f}"),
     ("residual motion [mm]", "residual_motion_m", "×1000{:.3f}"),
     ("settling [s]", "settling_time_s", "{:.2f}"),
+    ("added latency [s]", "added_latency_s", "{:.2f}"),
     ("pre-sim violations", "presim_violations", "{}"),
 )
 

@@ -13,6 +13,7 @@ method             estimate of sample k                            sent after
 ``offline-cks``    Offline-CKS, Drake MathematicalProgram          offline (replayed from t_0)
 ``bmfls``          x̂_{k|k+L}, fixed-lag, constant σ_0               L Δt
 ``online-cks``     x̂_{k|k+L}, fixed-lag with reduced-Q σ_k          L Δt
+``ruckig``         Ruckig's jerk-limited motion toward z_k (peer)   0 (trails the stream)
 =================  ==============================================  ===========================
 
 For the fixed-lag methods the operator is taken to hold the last pose after the recording ends
@@ -31,6 +32,7 @@ from telesmooth.smoothing.kalman import kalman_filter, rest_prior, rts_smoother
 from telesmooth.smoothing.model import DEFAULT_LAG, DEFAULT_R, DEFAULT_SIGMA, JerkModel
 from telesmooth.smoothing.offline import solve_offline_cks
 from telesmooth.smoothing.reduced_q import OnlineCks, ReducedQConfig
+from telesmooth.smoothing.ruckig_stream import ruckig_stream
 from telesmooth.smoothing.validation import (
     as_per_joint,
     check_positive_int,
@@ -38,7 +40,8 @@ from telesmooth.smoothing.validation import (
     check_trajectory,
 )
 
-METHODS = ("original", "kf", "kf-predictor", "offline-ks", "offline-cks", "bmfls", "online-cks")
+METHODS = ("original", "kf", "kf-predictor", "offline-ks", "offline-cks", "bmfls", "online-cks",
+           "ruckig")
 FIXED_LAG_METHODS = ("bmfls", "online-cks")
 OFFLINE_METHODS = ("offline-ks", "offline-cks")
 
@@ -61,6 +64,8 @@ class SmoothingSettings:
         offline_tolerance: Clarabel tolerances for Offline-CKS.
         offline_solver: "drake" (MathematicalProgram + Clarabel, banded IP as the fallback) or
             "banded-ip" (the banded interior point alone), see smoothing.offline.
+        ruckig_target, ruckig_synchronization: how the ``ruckig`` peer is fed, see
+            smoothing.ruckig_stream (its velocity limit is ``max_velocity``).
     """
 
     max_acceleration: object = np.inf
@@ -75,6 +80,8 @@ class SmoothingSettings:
     reduced_q: ReducedQConfig = field(default_factory=ReducedQConfig)
     offline_tolerance: float = 1e-12
     offline_solver: str = "drake"
+    ruckig_target: str = "rest"
+    ruckig_synchronization: str = "none"
 
 
 @dataclass(frozen=True, eq=False)
@@ -166,6 +173,15 @@ def smooth_recording(
             )
         return SmoothedRecording(method, result.states[:, :, 0].copy(), result.states, 0.0,
                                  details=details)
+    if method == "ruckig":
+        states = ruckig_stream(z, dt_s, max_acceleration=settings.max_acceleration,
+                               max_jerk=settings.max_jerk, max_velocity=settings.max_velocity,
+                               target=settings.ruckig_target,
+                               synchronization=settings.ruckig_synchronization,
+                               joint_names=joint_names)
+        return SmoothedRecording(method, states[:, :, 0].copy(), states, 0.0,
+                                 details={"target": settings.ruckig_target,
+                                          "synchronization": settings.ruckig_synchronization})
     # Fixed-lag methods: the operator holds the last pose for L more samples.
     padded = np.vstack([z, np.repeat(z[-1:], lag, axis=0)])
     if method == "bmfls":

@@ -88,8 +88,10 @@ def test_every_method_writes_the_input_rows_plus_sent_t(tmp_path, capsys, input_
     assert np.all(np.isfinite(values))
     delay = 3 * DT if method in FIXED_LAG_METHODS else 0.0
     np.testing.assert_allclose(values[:, 4], t + delay, rtol=0, atol=1e-12)
-    # A smoother stays close to the operator (noise 1e-3, reaches ≤ 0.5 rad).
-    assert np.abs(values[:, 1:4] - q).max() < 0.1
+    # A smoother stays close to the operator (noise 1e-3, reaches ≤ 0.5 rad). Ruckig is not a
+    # smoother: it trails the stream (tests/test_ruckig_stream.py).
+    if method != "ruckig":
+        assert np.abs(values[:, 1:4] - q).max() < 0.1
 
 
 @pytest.mark.parametrize("lag", [3, 5])
