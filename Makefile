@@ -27,7 +27,7 @@ test: venv
 	$(BIN)/python -m pytest -q
 
 bench: venv
-	$(BIN)/python -m telesmooth.scripts.bench_core --out out/bench
+	$(BIN)/telesmooth bench --out out/bench
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .hypothesis

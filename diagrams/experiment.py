@@ -96,7 +96,7 @@ class ExperimentConfig:
         methods: Methods of the main table (``original`` is always added: it is P's reference).
         plant_time_step_s: The flexible-joint plant's step for every run, s. 5 ms instead of the
             scenario's 1 ms makes a run about twice as fast; the interpolator still polls at
-            1 ms. Measured on Defaults: e changes by 0.04 % (see the README).
+            1 ms. Measured on Defaults: e changes by 0.03 % (see the README).
         settle_s: Simulated time after the operator's last sample, s (long enough for the
             methods that trail the operator, e.g. Ruckig, to arrive).
         sensitivity_shapes: Shapes (demonstration 0) of the Online-CKS sensitivity study.

@@ -4,10 +4,15 @@ Measured side by side in one run (this machine is noisy; compare ratios, not abs
 
 * Offline-CKS for 6 joints at N = 10² … 10⁵ in both constraint modes, against one RTS pass
   (filter + backward pass) on the same data: the floor any offline smoother pays.
-* The online fixed-lag step per 4 Hz tick for 6 joints at L = 3 and L = 75, superstate filter
-  against the exact recursion.
+* The online step per 4 Hz tick for 6 joints at L = 3 and L = 75: the fixed-lag smoother
+  (superstate filter and exact recursion), Online-CKS (recursion + reduced-Q), against Ruckig's
+  update on the same stream (each sample a new target; the peer a user would reach for).
+* Simulation speed of the whole chain as a real-time factor (simulated / wall time) for the
+  planar arm (Defaults) and the 6-DOF arm, and of the experiment's playback (uplink + plant) at
+  the plant's 1 ms and the experiment's 5 ms step.
 
-Usage: ``python -m telesmooth.scripts.bench_core [--out DIR] [--max-n 100000] [--repeat 3]``
+Usage: ``telesmooth bench [--out DIR] [--max-n 100000] [--repeat 3]`` (or
+``python -m telesmooth.scripts.bench_core``, ``make bench``).
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from telesmooth.smoothing.fixed_lag import FixedLagSmoother
 from telesmooth.smoothing.kalman import rest_prior, rts_smoother
 from telesmooth.smoothing.model import DEFAULT_DT_S, DEFAULT_R, DEFAULT_SIGMA, JerkModel
 from telesmooth.smoothing.offline import solve_offline_cks
+from telesmooth.smoothing.reduced_q import OnlineCks
 
 NUM_JOINTS = 6
 MAX_ACCELERATION = 0.05
@@ -89,10 +95,34 @@ def bench_offline(sizes, repeat, max_drake_n=10_000):
     return rows
 
 
+def _ruckig_stream_step(z, ticks):
+    """Ruckig's update per tick on the stream z (6 joints), each sample the new target."""
+    try:
+        import ruckig
+    except ImportError:
+        return None
+    n = z.shape[1]
+    generator = ruckig.Ruckig(n, DEFAULT_DT_S)
+    request, result = ruckig.InputParameter(n), ruckig.OutputParameter(n)
+    request.max_velocity = [1e3] * n
+    request.max_acceleration = [MAX_ACCELERATION] * n
+    request.max_jerk = [MAX_JERK] * n
+    request.synchronization = ruckig.Synchronization.No
+    request.current_position = z[0].tolist()
+    targets = [row.tolist() for row in z]
+    for k in range(ticks):
+        request.target_position = targets[k]
+        generator.update(request, result)
+        result.pass_to_input(request)
+    return result
+
+
 def bench_online(lags, ticks, repeat):
     rows = []
     z = synthetic_operator(ticks, NUM_JOINTS, seed=1)
     model = JerkModel.make(DEFAULT_DT_S, DEFAULT_SIGMA, DEFAULT_R, num_joints=NUM_JOINTS)
+    ruckig_s, ruckig_result = _best_time(lambda: _ruckig_stream_step(z, ticks), repeat)
+    ruckig_us = 1e6 * ruckig_s / ticks if ruckig_result is not None else None
     for lag in lags:
         row = {"lag": lag, "num_joints": NUM_JOINTS, "ticks": ticks}
         for method in ("superstate", "recursion"):
@@ -106,16 +136,67 @@ def bench_online(lags, ticks, repeat):
 
             seconds, _ = _best_time(stream, repeat)
             row[f"{method}_us_per_tick"] = 1e6 * seconds / ticks
+        online = OnlineCks(model, max_acceleration=MAX_ACCELERATION, max_jerk=MAX_JERK, lag=lag)
+
+        def online_stream():
+            state = online.initial_state(z[0])
+            for k in range(ticks):
+                state = online.step(state, z[k])[0]
+            return state
+
+        seconds, _ = _best_time(online_stream, repeat)
+        row["online_cks_us_per_tick"] = 1e6 * seconds / ticks
         row["superstate_over_recursion"] = (row["superstate_us_per_tick"]
                                             / row["recursion_us_per_tick"])
+        if ruckig_us is not None:
+            row["ruckig_us_per_tick"] = ruckig_us
+            row["online_cks_over_ruckig"] = row["online_cks_us_per_tick"] / ruckig_us
         rows.append(row)
         print(f"  online L={lag:>3}: superstate {row['superstate_us_per_tick']:8.1f} µs/tick | "
-              f"recursion {row['recursion_us_per_tick']:8.1f} µs/tick", file=sys.stderr,
+              f"recursion {row['recursion_us_per_tick']:8.1f} µs/tick | Online-CKS "
+              f"{row['online_cks_us_per_tick']:8.1f} µs/tick | Ruckig "
+              f"{ruckig_us if ruckig_us is not None else float('nan'):8.1f} µs/tick",
+              file=sys.stderr, flush=True)
+    return rows
+
+
+def bench_simulation(duration_s: float):
+    """Real-time factors of the whole chain and of the experiment's playback."""
+    import dataclasses
+
+    from telesmooth.diagrams.comparison import prepare_comparison, run_method
+    from telesmooth.diagrams.scenario import load_scenario
+    from telesmooth.diagrams.simulation import simulate
+
+    rows = []
+    cases = (("planar arm (Defaults)", load_scenario(scenario_name="Defaults")),
+             ("6-DOF arm (space_arm, LASA)", load_scenario(scenario_text="{arm: space_arm}")))
+    for name, scenario in cases:
+        record = simulate(scenario, duration_s=duration_s)
+        wall = record.wall_time_s  # the simulation alone (not the diagram's construction)
+        rows.append({"what": f"whole chain, {name}", "simulated_s": record.duration_s,
+                     "wall_s": wall, "real_time_factor": record.duration_s / wall})
+        print(f"  simulate {name}: {duration_s:.0f} s in {wall:.1f} s "
+              f"(×{duration_s / wall:.1f} real time)", file=sys.stderr, flush=True)
+    base = load_scenario(scenario_name="Defaults")
+    for step in (1e-3, 5e-3):
+        scenario = dataclasses.replace(base, onboard=dataclasses.replace(base.onboard,
+                                                                         time_step_s=step))
+        setup = prepare_comparison(scenario)
+        started = time.perf_counter()
+        run = run_method(setup, "online-cks")
+        wall = time.perf_counter() - started
+        rows.append({"what": f"experiment playback (online-cks), plant step {step * 1e3:g} ms",
+                     "simulated_s": setup.duration_s, "wall_s": wall,
+                     "real_time_factor": setup.duration_s / wall,
+                     "e_mean_m": run.metrics["response_error_m"]["mean"]})
+        print(f"  playback, plant step {step * 1e3:g} ms: {setup.duration_s:.0f} s in "
+              f"{wall:.1f} s (×{setup.duration_s / wall:.1f} real time)", file=sys.stderr,
               flush=True)
     return rows
 
 
-def _table(offline, online) -> str:
+def _table(offline, online, simulation=()) -> str:
     lines = ["Offline-CKS, 6 joints (wall time incl. build; best of repeats); drake = "
              "MathematicalProgram + Clarabel, banded-ip = the banded interior point", "",
              "| N | RTS pass [s] | mode | drake [s] | drake / RTS | banded-ip [s] | "
@@ -135,33 +216,47 @@ def _table(offline, online) -> str:
                 f"{cell(r, f'{mode}_banded_ip_over_rts', '{:.1f}')} | "
                 f"{cell(r, f'{mode}_drake_over_banded_ip', '{:.1f}')} | "
                 f"{cell(r, f'{mode}_max_position_difference_rad', '{:.1e}')} |")
-    lines += ["", "Online fixed-lag step, 6 joints", "",
-              "| L | superstate [µs/tick] | recursion [µs/tick] | superstate / recursion |",
-              "|---:|---:|---:|---:|"]
+    lines += ["", "Online step per 4 Hz tick, 6 joints", "",
+              "| L | superstate [µs/tick] | recursion [µs/tick] | superstate / recursion | "
+              "Online-CKS [µs/tick] | Ruckig update [µs/tick] | Online-CKS / Ruckig |",
+              "|---:|---:|---:|---:|---:|---:|---:|"]
     for r in online:
         lines.append(f"| {r['lag']} | {r['superstate_us_per_tick']:.1f} | "
-                     f"{r['recursion_us_per_tick']:.1f} | {r['superstate_over_recursion']:.2f} |")
+                     f"{r['recursion_us_per_tick']:.1f} | {r['superstate_over_recursion']:.2f} | "
+                     f"{r['online_cks_us_per_tick']:.1f} | "
+                     f"{cell(r, 'ruckig_us_per_tick', '{:.1f}')} | "
+                     f"{cell(r, 'online_cks_over_ruckig', '{:.1f}')} |")
+    if simulation:
+        lines += ["", "Simulation speed", "",
+                  "| what | simulated [s] | wall [s] | real-time factor |", "|---|---:|---:|---:|"]
+        for r in simulation:
+            lines.append(f"| {r['what']} | {r['simulated_s']:.1f} | {r['wall_s']:.1f} | "
+                         f"{r['real_time_factor']:.1f} |")
     return "\n".join(lines) + "\n"
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="telesmooth bench",
+                                     description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("out/bench"))
     parser.add_argument("--max-n", type=int, default=100_000)
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--ticks", type=int, default=2000)
     parser.add_argument("--max-drake-n", type=int, default=10_000,
                         help="largest N solved with the Drake MathematicalProgram too")
+    parser.add_argument("--sim-duration", type=float, default=30.0,
+                        help="simulated seconds of the whole-chain real-time factor (0 = skip)")
     args = parser.parse_args(argv)
     sizes = [n for n in (100, 1_000, 10_000, 100_000) if n <= args.max_n]
     print("telesmooth core benchmark", file=sys.stderr)
     offline = bench_offline(sizes, args.repeat, args.max_drake_n)
     online = bench_online((3, 75), args.ticks, args.repeat)
+    simulation = bench_simulation(args.sim_duration) if args.sim_duration > 0 else []
     report = {"machine": {"python": platform.python_version(), "processor": platform.machine()},
-              "offline_cks": offline, "online_step": online}
+              "offline_cks": offline, "online_step": online, "simulation": simulation}
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "bench_core.json").write_text(json.dumps(report, indent=2) + "\n")
-    table = _table(offline, online)
+    table = _table(offline, online, simulation)
     (args.out / "bench_core.md").write_text(table)
     print(table)
     print(f"wrote {args.out / 'bench_core.json'}", file=sys.stderr)

@@ -335,6 +335,14 @@ def run_experiment_command(args) -> int:
     return 0
 
 
+def _add_bench_parser(subparsers) -> None:
+    p = subparsers.add_parser(
+        "bench", add_help=False,
+        help="the performance benchmark (Offline-CKS solvers vs RTS, online step vs Ruckig, "
+             "simulation real-time factors); --help lists its options")
+    p.set_defaults(handler=None)  # main() hands `bench …` to bench_core before parsing
+
+
 def _add_process_parsers(subparsers) -> None:
     from telesmooth.diagrams.channels import DEFAULT_LCM_URL
 
@@ -382,11 +390,18 @@ def build_parser() -> argparse.ArgumentParser:
     _add_simulate_parser(subparsers)
     _add_compare_parser(subparsers)
     _add_experiment_parser(subparsers)
+    _add_bench_parser(subparsers)
     _add_process_parsers(subparsers)
     return parser
 
 
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["bench"]:
+        # The benchmark has its own parser (also `python -m telesmooth.scripts.bench_core`).
+        from telesmooth.scripts.bench_core import main as bench_main
+
+        return bench_main(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

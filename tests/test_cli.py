@@ -432,3 +432,25 @@ def test_console_script_entry_point(tmp_path, input_csv):
     header, values = read_csv(out)
     assert header == ["t", *NAMES, "sent_t"]
     np.testing.assert_allclose(values[:, -1], t + 3 * DT, rtol=0, atol=1e-12)
+
+
+def test_bench_writes_its_figures_and_their_ratios(tmp_path, capsys):
+    pytest.importorskip("ruckig")
+    status = main(["bench", "--out", str(tmp_path), "--max-n", "100", "--repeat", "1",
+                   "--ticks", "20", "--max-drake-n", "100", "--sim-duration", "0"])
+    captured = capsys.readouterr()
+    assert status == 0, captured.err
+    data = json.loads((tmp_path / "bench_core.json").read_text())
+    (row,) = data["offline_cks"]
+    assert row["num_samples"] == 100
+    for mode in ("state", "trajectory"):
+        assert row[f"{mode}_drake_success"] and row[f"{mode}_banded_ip_success"]
+        assert row[f"{mode}_drake_over_banded_ip"] == pytest.approx(
+            row[f"{mode}_drake_s"] / row[f"{mode}_banded_ip_s"])
+        assert row[f"{mode}_max_position_difference_rad"] < 1e-6
+    assert [r["lag"] for r in data["online_step"]] == [3, 75]
+    for r in data["online_step"]:
+        assert r["online_cks_over_ruckig"] == pytest.approx(
+            r["online_cks_us_per_tick"] / r["ruckig_us_per_tick"])
+    assert "Online-CKS / Ruckig" in (tmp_path / "bench_core.md").read_text()
+    assert "Online-CKS / Ruckig" in captured.out
