@@ -93,7 +93,7 @@ __all__ = [
 ]
 
 COMPARE_METHODS = ("original", "kf", "kf-predictor", "offline-ks", "offline-cks",
-                   "offline-cks-trajectory", "bmfls", "online-cks", "ruckig")
+                   "offline-cks-trajectory", "bmfls", "online-cks", "online-hard", "ruckig")
 """Every method :func:`compare_methods` knows, in the order of the paper's Table 2."""
 
 _REFERENCE = "original"

@@ -13,6 +13,8 @@ method             estimate of sample k                            sent after
 ``offline-cks``    Offline-CKS, Drake MathematicalProgram          offline (replayed from t_0)
 ``bmfls``          x̂_{k|k+L}, fixed-lag, constant σ_0               L Δt
 ``online-cks``     x̂_{k|k+L}, fixed-lag with reduced-Q σ_k          L Δt
+``online-hard``    Online-CKS's x̂_{k|k+L} through the hard limiter   L Δt
+                   (smoothing.online_hard: FD v/a/j always within)
 ``ruckig``         Ruckig's jerk-limited motion toward z_k (peer)   0 (trails the stream)
 =================  ==============================================  ===========================
 
@@ -30,6 +32,7 @@ import numpy as np
 from telesmooth.smoothing.fixed_lag import FixedLagSmoother
 from telesmooth.smoothing.kalman import kalman_filter, rest_prior, rts_smoother
 from telesmooth.smoothing.model import DEFAULT_LAG, DEFAULT_R, DEFAULT_SIGMA, JerkModel
+from telesmooth.smoothing.online_hard import online_hard_run
 from telesmooth.smoothing.offline import solve_offline_cks
 from telesmooth.smoothing.reduced_q import OnlineCks, ReducedQConfig
 from telesmooth.smoothing.ruckig_stream import ruckig_stream
@@ -41,8 +44,8 @@ from telesmooth.smoothing.validation import (
 )
 
 METHODS = ("original", "kf", "kf-predictor", "offline-ks", "offline-cks", "bmfls", "online-cks",
-           "ruckig")
-FIXED_LAG_METHODS = ("bmfls", "online-cks")
+           "online-hard", "ruckig")
+FIXED_LAG_METHODS = ("bmfls", "online-cks", "online-hard")
 OFFLINE_METHODS = ("offline-ks", "offline-cks")
 
 
@@ -202,10 +205,42 @@ def smooth_recording(
         sigma0 = as_per_joint("sigma0", sigma0, num_joints, joint_names)
     run = online.run(padded, sigma0=sigma0)
     states = run.outputs[lag:]
+    details = {"lag": lag, "variant": settings.reduced_q.variant,
+               "step_rule": settings.reduced_q.step_rule,
+               "cycles_triggered": run.triggered.sum(axis=0).tolist()}
+    if method == "online-hard":
+        # The estimate each tick leaves the ground station through the hard limiter: the sent
+        # sequence (after the robot's rest at z_0) meets every FD limit exactly.
+        positions = online_hard_run(
+            states[:, :, 0], dt_s, max_acceleration=settings.max_acceleration,
+            max_jerk=settings.max_jerk, max_velocity=settings.max_velocity, q_start=z[0],
+            joint_names=joint_names)
+        states = finite_difference_states(positions, z[0], dt_s)
+        details["limited_max_abs_rad"] = np.abs(positions - run.outputs[lag:, :, 0]).max(
+            axis=0).tolist()
     return SmoothedRecording(
         method, states[:, :, 0].copy(), states, lag * dt_s,
-        sigma=run.sigma[lag:], final_sigma=run.final_state.sigma.copy(),
-        details={"lag": lag, "variant": settings.reduced_q.variant,
-                 "step_rule": settings.reduced_q.step_rule,
-                 "cycles_triggered": run.triggered.sum(axis=0).tolist()},
-    )
+        sigma=run.sigma[lag:], final_sigma=run.final_state.sigma.copy(), details=details)
+
+
+def finite_difference_states(positions, rest, dt_s: float) -> np.ndarray:
+    """[p, FD velocity, FD acceleration, FD jerk] of a sent sequence after rest at ``rest``.
+
+    Args:
+        positions: p_k, (N, J).
+        rest: The pose held before p_0 (p_{−1} = p_{−2} = p_{−3}), (J,).
+        dt_s: Δt.
+
+    Returns:
+        (N, J, 4): backward differences (p_k − p_{k−1})/Δt etc., the history included.
+    """
+    positions = np.asarray(positions, dtype=float)
+    history = np.vstack([np.repeat(np.asarray(rest, dtype=float)[None, :], 3, axis=0),
+                         positions])
+    states = np.empty(positions.shape + (4,))
+    states[:, :, 0] = positions
+    difference = history
+    for order in (1, 2, 3):
+        difference = np.diff(difference, axis=0) / dt_s
+        states[:, :, order] = difference[3 - order:]
+    return states
