@@ -63,7 +63,8 @@ def _add_smooth_parser(subparsers) -> None:
     p.add_argument("--jerk-max", type=parse_per_joint, required=True, metavar="J",
                    help="jerk limit j_max [rad/s³]")
     p.add_argument("--vel-max", type=parse_per_joint, default=None, metavar="V",
-                   help="velocity limit v_max [rad/s] (offline-cks trajectory mode)")
+                   help="velocity limit v_max [rad/s] (offline-cks trajectory mode, online-hard, "
+                   "ruckig)")
     p.add_argument("--constraint", choices=OFFLINE_CONSTRAINTS[:2], default="state",
                    help="offline-cks: 'state' (the paper's state box, soft) or 'trajectory' "
                    "(hard limits on the finite differences of the sent positions)")
