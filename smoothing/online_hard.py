@@ -451,6 +451,30 @@ class OnlineHardLimiter:
         self._held = np.zeros(q.shape, dtype=bool)
         self._ticks = 0
 
+    @property
+    def state_size(self) -> int:
+        """Length of :meth:`get_state_vector` (10 values per joint + the tick count)."""
+        return 10 * self._num_joints + 1
+
+    def get_state_vector(self) -> np.ndarray:
+        """Everything the next :meth:`step` depends on, as one vector (for a Drake Context):
+        [p, v, a, p_{k−3} … p_k, r_{k−2}, r_{k−1}, held, ticks]."""
+        return np.concatenate([self._p, self._vel, self._acc, *self._sent, *self._targets,
+                               self._held.astype(float), [float(self._ticks)]])
+
+    def set_state_vector(self, vector) -> None:
+        """Restores a state from :meth:`get_state_vector` (the limits are not part of it)."""
+        vector = np.asarray(vector, dtype=float)
+        if vector.shape != (self.state_size,):
+            raise ValueError(f"state vector has shape {vector.shape}; expected "
+                             f"({self.state_size},)")
+        parts = vector[:-1].reshape(10, self._num_joints)
+        self._p, self._vel, self._acc = parts[0].copy(), parts[1].copy(), parts[2].copy()
+        self._sent = [row.copy() for row in parts[3:7]]
+        self._targets = [parts[7].copy(), parts[8].copy()]
+        self._held = parts[9] > 0.5
+        self._ticks = int(vector[-1])
+
     def _check_finite(self, field: str, values: np.ndarray) -> None:
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:

@@ -372,3 +372,23 @@ def test_online_hard_method_is_online_cks_through_the_limiter():
             (window[3] - 2 * window[2] + window[1]) / 0.25**2, abs=1e-10)
         assert states[k, :, 3] == pytest.approx(
             (window[3] - 3 * window[2] + 3 * window[1] - window[0]) / 0.25**3, abs=1e-9)
+
+
+def test_state_vector_round_trip_continues_identically():
+    rng = np.random.default_rng(9)
+    stream = np.cumsum(rng.normal(0.0, 0.05, (60, 2)), axis=0)
+    reference = OnlineHardLimiter(dt_s=0.25, max_acceleration=0.05, max_jerk=0.1,
+                                  max_velocity=0.2, q_start=[0.0, 0.0])
+    expected = [reference.step(r) for r in stream]
+    first = OnlineHardLimiter(dt_s=0.25, max_acceleration=0.05, max_jerk=0.1, max_velocity=0.2,
+                              q_start=[0.0, 0.0])
+    out = [first.step(r) for r in stream[:25]]
+    # A fresh limiter (another process, a Drake Context) continues from the saved state.
+    second = OnlineHardLimiter(dt_s=0.25, max_acceleration=0.05, max_jerk=0.1,
+                               max_velocity=0.2, q_start=[5.0, 5.0])
+    second.set_state_vector(first.get_state_vector())
+    assert second.ticks == 25
+    out += [second.step(r) for r in stream[25:]]
+    np.testing.assert_array_equal(np.array(out), np.array(expected))
+    with pytest.raises(ValueError, match="state vector has shape"):
+        second.set_state_vector(np.zeros(3))
