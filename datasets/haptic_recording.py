@@ -19,13 +19,13 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from telesmooth.smoothing.trajectory_io import (
+    cell_lines,
     check_uniform_time,
     parse_csv_number,
     read_csv_table,
@@ -51,6 +51,27 @@ _TIME_COLUMN = "t"
 _ENABLE_COLUMN = "enable"
 _NPZ_KEYS = ("t_s", "pose", "pose_names", "enable")
 _NPZ_REQUIRED_KEYS = ("t_s", "pose", "pose_names")
+_ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")   # a zip with members / an empty zip
+_NPY_MAGIC = b"\x93NUMPY"
+_REAL_KINDS = "biuf"   # bool, int, unsigned, float: exactly representable as float64 values
+
+
+def _as_real_array(values, *, field: str) -> np.ndarray:
+    """``values`` as a new float64 array; raises ValueError naming ``field`` for anything that
+    is not real numbers (complex values would lose their imaginary part, strings and dates
+    have no meaning as seconds or metres)."""
+    array = np.asarray(values)
+    if array.dtype.kind == "O":   # e.g. a list mixing numbers and other objects
+        try:
+            return np.array(array, dtype=float)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"{field} holds values that are not real numbers ({error})") \
+                from None
+    if array.dtype.kind not in _REAL_KINDS:
+        raise ValueError(
+            f"{field} has dtype {array.dtype} (shape {array.shape}); expected real numbers"
+        )
+    return np.array(array, dtype=float)
 
 
 def _check_pose_names(pose_names, *, source: str) -> tuple[str, ...]:
@@ -148,12 +169,12 @@ class HapticRecording:
 
     def __post_init__(self) -> None:
         names = _check_pose_names(self.pose_names, source="HapticRecording")
-        t_s = np.array(self.t_s, dtype=float)
+        t_s = _as_real_array(self.t_s, field="t_s")
         if t_s.ndim != 1:
             raise ValueError(f"t_s has shape {t_s.shape}; expected (num_samples,)")
         if t_s.size < 2:
             raise ValueError(f"t_s has {t_s.size} sample(s); at least 2 are needed")
-        pose = np.array(self.pose, dtype=float)
+        pose = _as_real_array(self.pose, field="pose")
         if pose.shape != (t_s.size, len(names)):
             raise ValueError(
                 f"pose has shape {pose.shape}; expected ({t_s.size}, {len(names)}): one row "
@@ -264,12 +285,12 @@ def read_haptic_csv(path, *, expected_pose_names: Sequence[str] | None = None) -
                 f"{path}: line {line} has {len(row)} value(s); the header has {len(header)} "
                 f"columns {header}"
             )
-        for col, cell in enumerate(row):
-            value = parse_csv_number(cell, path=path, line=line, column=header[col])
+        for col, (cell_line, cell) in enumerate(zip(cell_lines(line, row), row)):
+            value = parse_csv_number(cell, path=path, line=cell_line, column=header[col])
             if has_enable and col == len(header) - 1 and value not in (0.0, 1.0):
                 raise ValueError(
-                    f"{path}: line {line}, column 'enable': value {cell.strip()!r} must be "
-                    "0 or 1"
+                    f"{path}: line {cell_line}, column 'enable': value {cell.strip()!r} must "
+                    "be 0 or 1"
                 )
             values[data_index, col] = value
     if values.shape[0] < 2:
@@ -314,19 +335,16 @@ def read_haptic_npz(path, *, expected_pose_names: Sequence[str] | None = None) -
         The recording; enabled throughout if the file has no ``enable`` array.
 
     Raises:
-        ValueError: If the file cannot be read as NPZ (pickled object arrays are refused), a
-            required array is missing or an unknown one present, ``pose_names`` is not a 1-D
-            array of strings or differs from ``expected_pose_names``, or the arrays fail the
-            checks of :class:`HapticRecording` (shapes, finiteness, uniform time, enable 0/1).
+        ValueError: If the file cannot be read as NPZ (not a zip archive, e.g. a single
+            ``.npy`` array; a damaged archive; a member that is not a ``.npy`` array; pickled
+            object arrays, which are refused), a required array is missing or an unknown one
+            present, ``pose_names`` is not a 1-D array of strings or differs from
+            ``expected_pose_names``, or the arrays fail the checks of :class:`HapticRecording`
+            (real-number dtypes, shapes, finiteness, uniform time, enable 0/1). The message
+            starts with the file and names the array.
     """
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as archive:
-            arrays = {key: archive[key] for key in archive.files}
-    except (OSError, zipfile.BadZipFile, EOFError) as error:
-        raise ValueError(f"{path}: cannot read as NPZ ({error})") from None
-    except ValueError as error:  # object arrays need pickle, which we refuse
-        raise ValueError(f"{path}: cannot read without pickle ({error})") from None
+    arrays = _load_npz_arrays(path)
     missing = [key for key in _NPZ_REQUIRED_KEYS if key not in arrays]
     if missing:
         raise ValueError(
@@ -358,6 +376,60 @@ def read_haptic_npz(path, *, expected_pose_names: Sequence[str] | None = None) -
         )
     except ValueError as error:
         raise ValueError(f"{path}: {error}") from None
+
+
+def _load_npz_arrays(path: Path) -> dict:
+    """All arrays of an NPZ file by name; every way the file can fail is a ValueError that
+    starts with ``path`` (and names the member where one is at fault)."""
+    try:
+        with path.open("rb") as handle:
+            head = handle.read(len(_NPY_MAGIC))
+    except OSError as error:
+        raise ValueError(f"{path}: cannot read ({error.strerror})") from None
+    if head.startswith(_NPY_MAGIC):
+        raise ValueError(
+            f"{path}: cannot read as NPZ: this is a single .npy array, not an archive of the "
+            f"named arrays {list(_NPZ_KEYS)} (write it with numpy.savez)"
+        )
+    if not head.startswith(_ZIP_MAGIC):
+        raise ValueError(
+            f"{path}: cannot read as NPZ: the file starts with {head!r}, not with a zip "
+            "archive's signature"
+        )
+    # From here on only numpy and zipfile parse the (untrusted) bytes. Damaged archives make
+    # them raise an open set of types (BadZipFile, zlib.error, NotImplementedError for an
+    # unknown compression method, RuntimeError for an encryption flag, EOFError, struct.error,
+    # ValueError for a bad .npy header, MemoryError for an absurd shape, ...): every one
+    # means "this file is not a readable NPZ", so all become the documented ValueError.
+    try:
+        archive = np.load(path, allow_pickle=False)
+    except Exception as error:  # noqa: BLE001 - see above
+        raise ValueError(
+            f"{path}: cannot read as NPZ ({type(error).__name__}: {error})"
+        ) from None
+    if not isinstance(archive, np.lib.npyio.NpzFile):   # defensive: magic checked above
+        raise ValueError(f"{path}: cannot read as NPZ (got a {type(archive).__name__})")
+    arrays = {}
+    with archive:
+        for key in archive.files:
+            try:
+                value = archive[key]
+            except Exception as error:  # noqa: BLE001 - as for np.load above
+                if isinstance(error, ValueError) and "allow_pickle" in str(error):
+                    raise ValueError(
+                        f"{path}: cannot read without pickle: array {key!r} holds Python "
+                        f"objects, which we never unpickle ({error})"
+                    ) from None
+                raise ValueError(
+                    f"{path}: cannot read array {key!r} ({type(error).__name__}: {error})"
+                ) from None
+            if not isinstance(value, np.ndarray):
+                raise ValueError(
+                    f"{path}: archive member {key!r} is not a .npy array "
+                    f"({len(value)} byte(s) of other data)"
+                )
+            arrays[key] = value
+    return arrays
 
 
 def write_haptic_npz(path, recording: HapticRecording) -> None:

@@ -26,7 +26,7 @@ import dataclasses
 import numpy as np
 from pydrake.lcm import DrakeLcm
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
+from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem
 from pydrake.systems.primitives import LogVectorOutput
 
 from telesmooth.datasets.haptic_recording import HapticRecording
@@ -53,6 +53,7 @@ from telesmooth.systems.inverse_kinematics import InverseKinematicsSystem
 from telesmooth.systems.joint_command_receiver import JointCommandReceiver
 from telesmooth.systems.joint_command_sender import JointCommandSender
 from telesmooth.systems.joint_status_sender import JointStatusSender
+from telesmooth.systems.lcm_safe_subscriber import LcmSafeSubscriber
 from telesmooth.systems.period_mean import PeriodMean, PeriodMeanConfig
 from telesmooth.systems.reduced_q_smoother import ReducedQSmoother
 from telesmooth.systems.uplink import Uplink
@@ -150,15 +151,19 @@ def AddOperatorTargets(builder: DiagramBuilder, scenario: Scenario, *, recording
     else:
         if lcm is None:
             raise ValueError("haptic.source = 'lcm' needs an LCM instance (ground process)")
-        subscriber = builder.AddNamedSystem("haptic_subscriber", LcmSubscriberSystem.Make(
-            TELEOP_HAPTIC_COMMAND, lcmt_teleop_haptic_command, lcm))
+        # A subscriber that survives malformed packets (they count as rejected messages).
+        subscriber = builder.AddNamedSystem("haptic_subscriber", LcmSafeSubscriber(
+            channel=TELEOP_HAPTIC_COMMAND, lcm_type=lcmt_teleop_haptic_command, lcm=lcm))
         live_pose = np.asarray(scenario.haptic.live_initial_pose, dtype=float)
         if scenario.arm == "space_arm":
             from telesmooth.arms.air_bearing import planar_pose_to_space_arm
             live_pose = planar_pose_to_space_arm(live_pose)
         haptic = builder.AddNamedSystem("haptic_receiver", HapticCommandReceiver(
             initial_pose=live_pose))
-        builder.Connect(subscriber.get_output_port(), haptic.get_lcm_message_input_port())
+        builder.Connect(subscriber.get_lcm_message_output_port(),
+                        haptic.get_lcm_message_input_port())
+        builder.Connect(subscriber.get_message_undecodable_output_port(),
+                        haptic.get_message_undecodable_input_port())
 
     # Inverse kinematics, at the haptic rate.
     ik = builder.AddNamedSystem("inverse_kinematics", InverseKinematicsSystem(
@@ -370,13 +375,17 @@ def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm,
         initial_position_rad = initial_position(scenario, make_haptic_recording(scenario))
     builder = DiagramBuilder()
     builder.AddNamedSystem("lcm", LcmInterfaceSystem(lcm))
-    subscriber = builder.AddNamedSystem("joint_command_subscriber", LcmSubscriberSystem.Make(
-        TELEOP_JOINT_COMMAND, lcmt_teleop_joint_command, lcm))
+    # A subscriber that survives malformed packets (they count as rejected commands).
+    subscriber = builder.AddNamedSystem("joint_command_subscriber", LcmSafeSubscriber(
+        channel=TELEOP_JOINT_COMMAND, lcm_type=lcmt_teleop_joint_command, lcm=lcm))
     receiver = builder.AddNamedSystem("joint_command_receiver", JointCommandReceiver(
         scenario.command_receiver, joint_names=arm.joint_names,
         lower_rad=arm.joint_lower_rad, upper_rad=arm.joint_upper_rad,
         initial_position_rad=initial_position_rad))
-    builder.Connect(subscriber.get_output_port(), receiver.get_lcm_message_input_port())
+    builder.Connect(subscriber.get_lcm_message_output_port(),
+                    receiver.get_lcm_message_input_port())
+    builder.Connect(subscriber.get_message_undecodable_output_port(),
+                    receiver.get_message_undecodable_input_port())
     robot = AddOnboardRobot(builder, scenario, initial_position_rad=initial_position_rad)
     builder.Connect(receiver.get_q_commanded_output_port(), robot.GetInputPort("q_commanded"))
     tracker_period = scenario.onboard.tracker.period_s

@@ -7,7 +7,9 @@ every value (row number as in the file, column name, value), and the time step.
 from __future__ import annotations
 
 import csv
+import io
 import math
+import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,6 +18,14 @@ import numpy as np
 
 TIME_STEP_RTOL = 1e-6
 """Relative tolerance on the uniformity of the time column."""
+TIME_RESOLUTION_ULPS = 4.0
+"""Steps may also differ by this many units in the last place of the largest |t|: the file's
+decimal times are rounded to doubles, so e.g. epoch times (|t| ~ 1.7e9 s, ulp ~ 2.4e-7 s)
+cannot resolve step differences below that. Relative to |t|, so tiny steps near t = 0 are
+still checked to ``TIME_STEP_RTOL``."""
+_LINE_BREAK = re.compile(r"\r\n|\r|\n")
+"""What ends a physical line, for csv.reader on a file opened with ``newline=""``."""
+_LINE_BREAK_BYTES = re.compile(rb"\r\n|\r|\n")
 DEGREES_SUSPICION_RAD = 4.0 * math.pi
 """Joint values beyond this suggest degrees instead of radians (a warning, not an error)."""
 
@@ -76,8 +86,8 @@ def read_joint_csv(path, *, expected_dt_s: float | None = None) -> JointTrajecto
             raise ValueError(
                 f"{path}: line {row_index} has {len(row)} value(s); the header has {len(header)}"
             )
-        for col, cell in enumerate(row):
-            data[data_index, col] = parse_csv_number(cell, path=path, line=row_index,
+        for col, (line, cell) in enumerate(zip(cell_lines(row_index, row), row)):
+            data[data_index, col] = parse_csv_number(cell, path=path, line=line,
                                                      column=header[col])
     if data.shape[0] < 2:
         raise ValueError(f"{path}: {data.shape[0]} data row(s); at least 2 are needed")
@@ -96,10 +106,12 @@ def read_joint_csv(path, *, expected_dt_s: float | None = None) -> JointTrajecto
 
 
 def read_csv_table(path, *, expected_header_hint: str, after_time_hint: str):
-    """Reads a CSV file whose header starts with a time column ``t``.
+    """Reads a UTF-8 CSV file whose header starts with a time column ``t``.
 
     Blank lines are skipped but not renumbered, so every row keeps its line number in the file
-    for error messages. Header cells are stripped of white space; data cells are not.
+    for error messages: the physical line (``\\n``, ``\\r\\n`` or ``\\r`` ends one) on which
+    the row starts, also after quoted cells that span lines (see :func:`cell_lines` for the
+    line of each cell). Header cells are stripped of white space; data cells are not.
 
     Args:
         path: The file.
@@ -113,17 +125,37 @@ def read_csv_table(path, *, expected_header_hint: str, after_time_hint: str):
         and the data rows as a list of ``(line number, row cells)``.
 
     Raises:
-        ValueError: If the file cannot be read, is empty (or blank), or its first header column
-            is not ``t``.
+        ValueError: If the file cannot be read, is not UTF-8 (the message gives the line and
+            the byte), is not valid CSV for Python's reader (e.g. a cell longer than
+            ``csv.field_size_limit()``; the message gives the line), is empty (or blank), or
+            its first header column is not ``t``.
     """
     path = Path(path)
     try:
-        with path.open(newline="") as handle:
-            rows = list(csv.reader(handle))
+        data = path.read_bytes()
     except OSError as error:
         raise ValueError(f"{path}: cannot read ({error.strerror})") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        line = 1 + len(_LINE_BREAK_BYTES.findall(data, 0, error.start))
+        bad = data[error.start:error.end]
+        raise ValueError(
+            f"{path}: line {line}: byte(s) {bad!r} at file offset {error.start} are not valid "
+            f"UTF-8 ({error.reason}); save the file as UTF-8"
+        ) from None
+    reader = csv.reader(io.StringIO(text, newline=""))
+    rows = []
+    try:
+        for cells in reader:
+            # reader.line_num counts physical lines read so far, so a record starts on the line
+            # after the one where the previous record ended.
+            first_line = rows[-1][2] + 1 if rows else 1
+            rows.append((first_line, cells, reader.line_num))
+    except csv.Error as error:
+        raise ValueError(f"{path}: line {reader.line_num}: not valid CSV ({error})") from None
     # Keep each row's line number in the file (blank lines are skipped, not renumbered).
-    numbered = [(line, row) for line, row in enumerate(rows, start=1)
+    numbered = [(line, row) for line, row, _ in rows
                 if row and any(cell.strip() for cell in row)]
     if not numbered:
         raise ValueError(f"{path}: the file is empty; expected a header '{expected_header_hint}'")
@@ -134,6 +166,27 @@ def read_csv_table(path, *, expected_header_hint: str, after_time_hint: str):
             f"followed by {after_time_hint}"
         )
     return header, numbered[1:]
+
+
+def cell_lines(first_line: int, cells) -> list[int]:
+    """The file line on which each cell of a row starts.
+
+    Outside quotes a line break ends the row, so the only line breaks inside a row are those
+    kept inside its quoted cells; each cell starts on ``first_line`` plus the breaks before it.
+
+    Args:
+        first_line: The line the row starts on (as returned by :func:`read_csv_table`).
+        cells: The row's cells.
+
+    Returns:
+        One line number per cell.
+    """
+    lines = []
+    line = first_line
+    for cell in cells:
+        lines.append(line)
+        line += len(_LINE_BREAK.findall(cell))
+    return lines
 
 
 def parse_csv_number(cell: str, *, path, line: int, column: str) -> float:
@@ -152,22 +205,58 @@ def parse_csv_number(cell: str, *, path, line: int, column: str) -> float:
 
 
 def check_uniform_time(t_s, *, source: str = "t", expected_dt_s: float | None = None) -> float:
-    """Checks a strictly increasing, uniform time column; returns its step [s]."""
+    """Checks a finite, strictly increasing, uniform time column; returns its step [s].
+
+    Uniform means every step is within ``TIME_STEP_RTOL`` (relative) of the mean step
+    ``(t[-1] - t[0]) / (N - 1)``, plus ``TIME_RESOLUTION_ULPS`` units in the last place of the
+    largest |t| (the resolution of the times themselves). There is no absolute slack: near
+    t = 0, steps of 1e-13 s are checked as strictly as steps of 1 s.
+
+    Args:
+        t_s: The time column [s], shape (N,), N >= 2.
+        source: What the messages name (e.g. ``"<path>: column 't'"``).
+        expected_dt_s: If given, a finite positive step [s] the column's step must equal
+            (relative ``TIME_STEP_RTOL``).
+
+    Raises:
+        ValueError: If a time is not finite, time does not increase, the span ``t[-1] - t[0]``
+            overflows a double (no finite step), the step is not uniform, or it differs from
+            ``expected_dt_s`` (or that is not a finite positive number). Data rows are
+            counted from 1.
+    """
     t = np.asarray(t_s, dtype=float)
-    steps = np.diff(t)
+    if t.ndim != 1 or t.size < 2:
+        raise ValueError(f"{source}: {t.size} time value(s) of shape {t.shape}; at least 2 "
+                         "in a column are needed")
+    if expected_dt_s is not None and not (math.isfinite(expected_dt_s) and expected_dt_s > 0):
+        raise ValueError(f"{source}: --dt {expected_dt_s!r} s must be a finite positive step")
+    bad = ~np.isfinite(t)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{source}: t = {float(t[row])!r} at data row {row + 1} is not finite")
+    with np.errstate(over="ignore", invalid="ignore"):
+        steps = np.diff(t)
+        span = t[-1] - t[0]
     if np.any(steps <= 0):
         bad = int(np.flatnonzero(steps <= 0)[0])
         raise ValueError(
             f"{source}: time must increase; t = {float(t[bad + 1])!r} at data row {bad + 2} "
             f"follows t = {float(t[bad])!r}"
         )
-    dt = float((t[-1] - t[0]) / (len(t) - 1))
+    if not math.isfinite(span):
+        raise ValueError(
+            f"{source}: the time span from t = {float(t[0])!r} to t = {float(t[-1])!r} "
+            "overflows a double, so the time step is not finite"
+        )
+    dt = float(span / (len(t) - 1))
     deviation = np.abs(steps - dt)
-    if np.any(deviation > TIME_STEP_RTOL * dt + 1e-12):
+    resolution = TIME_RESOLUTION_ULPS * np.spacing(max(abs(float(t[0])), abs(float(t[-1]))))
+    if np.any(deviation > TIME_STEP_RTOL * dt + resolution):
         bad = int(np.argmax(deviation))
         raise ValueError(
-            f"{source}: the time step must be uniform; step {float(steps[bad])!r} s between data rows "
-            f"{bad + 1} and {bad + 2} differs from the mean step {dt!r} s (resample first)"
+            f"{source}: the time step must be uniform; step {float(steps[bad])!r} s between "
+            f"data rows {bad + 1} and {bad + 2} differs from the mean step {dt!r} s "
+            "(resample first)"
         )
     if expected_dt_s is not None and abs(dt - expected_dt_s) > TIME_STEP_RTOL * expected_dt_s:
         raise ValueError(

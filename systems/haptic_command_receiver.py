@@ -37,6 +37,27 @@ class HapticCommandReceiverConfig:
         check_period("HapticCommandReceiverConfig.timeout_s", self.timeout_s)
 
 
+# Layout of the status state (a float64 vector; the utime is kept exactly as two halves).
+_ENABLE, _ARRIVED, _HAVE_MESSAGE, _UTIME_HIGH, _UTIME_LOW, _REJECTED = range(6)
+
+
+def _split_utime(utime) -> tuple[float, float]:
+    """An int64 as (signed high 32 bits, unsigned low 32 bits), both exact in a float64."""
+    value = int(utime)
+    return float(value >> 32), float(value & 0xFFFF_FFFF)
+
+
+def _join_utime(high: float, low: float) -> int:
+    """The int64 that :func:`_split_utime` split."""
+    return (int(high) << 32) | int(low)
+
+
+def _is_default_message(msg) -> bool:
+    """True for the default-constructed message a subscriber outputs before any arrives."""
+    return (msg.utime == 0 and msg.seq == 0 and msg.num_axes == 0
+            and len(msg.pose_desired) == 0 and not msg.enable)
+
+
 class HapticCommandReceiver(LeafSystem):
     r"""Samples the latest haptic message; disengages the clutch on silence or bad data.
 
@@ -45,17 +66,30 @@ class HapticCommandReceiver(LeafSystem):
         name: HapticCommandReceiver
         input_ports:
         - lcm_message
+        - message_undecodable (optional)
         output_ports:
         - pose_desired
         - enable
         - message_rejected
 
-    - ``lcm_message``: latest ``lcmt_teleop_haptic_command`` (LcmSubscriberSystem output).
+    - ``lcm_message``: latest ``lcmt_teleop_haptic_command`` (the subscriber's output; a
+      default-constructed message before anything arrives).
+    - ``message_undecodable``: optional, (1,): 1 while the newest packet on the channel could
+      not be decoded (:class:`~telesmooth.systems.lcm_safe_subscriber.LcmSafeSubscriber`);
+      unconnected means 0.
     - ``pose_desired``: the last valid pose, (m,) (``initial_pose`` before any).
     - ``enable``: the message's clutch if the last message was valid and is at most
       ``timeout_s`` old, else 0, (1,).
-    - ``message_rejected``: 1 if the newest message had the wrong number of axes or a
-      non-finite value, (1,).
+    - ``message_rejected``: 1 if the newest message had the wrong number of axes (including
+      none: ``num_axes`` <= 0), a non-finite value, or could not be decoded, (1,).
+
+    Update every ``period_s``: a message is new when it differs in ``utime`` from the last one
+    examined (any int64 utime, compared exactly); before any message has been examined, every
+    message except the default-constructed one (utime 0, seq 0, no axes, clutch off: what the
+    subscriber outputs while nothing has arrived) is new, whatever its utime. A new message
+    with ``num_axes`` = m, m pose values and all of them finite becomes the pose and its
+    clutch; any other new message is rejected (clutch off, pose held). Then, if the newest
+    packet was undecodable, the message is flagged rejected too (the pose holds).
     """
 
     def __init__(self, config: HapticCommandReceiverConfig = HapticCommandReceiverConfig(), *,
@@ -68,19 +102,24 @@ class HapticCommandReceiver(LeafSystem):
         self._m = pose0.size
         self._message_input = self.DeclareAbstractInputPort(
             "lcm_message", AbstractValue.Make(lcmt_teleop_haptic_command()))
+        self._undecodable_input = self.DeclareVectorInputPort("message_undecodable", 1)
         self._pose_state = self.DeclareDiscreteState(pose0)
-        # [enable of last valid message, time it arrived, last seen utime, rejected]
-        self._status_state = self.DeclareDiscreteState([0.0, -np.inf, -1.0, 0.0])
+        # [enable of last valid message, time it arrived, a message was examined (0/1),
+        #  high and low 32 bits of its utime, rejected]; see the _ENABLE... indices.
+        self._status_state = self.DeclareDiscreteState([0.0, -np.inf, 0.0, 0.0, 0.0, 0.0])
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update_pose)
         self.DeclareForcedDiscreteUpdateEvent(self._update_pose)
         self._pose_output = self.DeclareStateOutputPort("pose_desired", self._pose_state)
         self._enable_output = self.DeclareVectorOutputPort("enable", 1, self._calc_enable)
         self._rejected_output = self.DeclareVectorOutputPort(
             "message_rejected", 1,
-            lambda c, o: o.SetAtIndex(0, c.get_discrete_state(self._status_state).get_value()[3]))
+            lambda c, o: o.SetAtIndex(0, self._status(c)[_REJECTED]))
 
     def get_lcm_message_input_port(self):
         return self._message_input
+
+    def get_message_undecodable_input_port(self):
+        return self._undecodable_input
 
     def get_pose_desired_output_port(self):
         return self._pose_output
@@ -91,23 +130,33 @@ class HapticCommandReceiver(LeafSystem):
     def get_message_rejected_output_port(self):
         return self._rejected_output
 
+    def _status(self, context):
+        return context.get_discrete_state(self._status_state).get_value()
+
     def _calc_enable(self, context, output):
-        enable, arrived, _, rejected = context.get_discrete_state(self._status_state).get_value()
-        fresh = context.get_time() - arrived <= self._config.timeout_s
-        output.SetAtIndex(0, 1.0 if (enable > 0.5 and fresh and rejected < 0.5) else 0.0)
+        status = self._status(context)
+        fresh = context.get_time() - status[_ARRIVED] <= self._config.timeout_s
+        engaged = status[_ENABLE] > 0.5 and fresh and status[_REJECTED] < 0.5
+        output.SetAtIndex(0, 1.0 if engaged else 0.0)
 
     def _update_pose(self, context, discrete_state):
-        enable, arrived, last_utime, rejected = \
-            context.get_discrete_state(self._status_state).get_value()
+        status = np.array(self._status(context))
         msg = self._message_input.Eval(context)
-        is_new = msg.num_axes > 0 and msg.utime != last_utime
+        if status[_HAVE_MESSAGE] > 0.5:
+            is_new = int(msg.utime) != _join_utime(status[_UTIME_HIGH], status[_UTIME_LOW])
+        else:
+            is_new = not _is_default_message(msg)
         if is_new:
-            last_utime = float(msg.utime)
+            status[_HAVE_MESSAGE] = 1.0
+            status[_UTIME_HIGH], status[_UTIME_LOW] = _split_utime(msg.utime)
             pose = np.asarray(msg.pose_desired, dtype=float)
             if msg.num_axes == self._m and pose.shape == (self._m,) and np.all(np.isfinite(pose)):
                 discrete_state.get_mutable_vector(self._pose_state).SetFromVector(pose)
-                enable, arrived, rejected = float(bool(msg.enable)), context.get_time(), 0.0
+                status[_ENABLE], status[_ARRIVED] = float(bool(msg.enable)), context.get_time()
+                status[_REJECTED] = 0.0
             else:
-                enable, rejected = 0.0, 1.0
-        discrete_state.get_mutable_vector(self._status_state).SetFromVector(
-            [enable, arrived, last_utime, rejected])
+                status[_ENABLE], status[_REJECTED] = 0.0, 1.0
+        undecodable = self._undecodable_input
+        if undecodable.HasValue(context) and undecodable.Eval(context)[0] > 0.5:
+            status[_ENABLE], status[_REJECTED] = 0.0, 1.0
+        discrete_state.get_mutable_vector(self._status_state).SetFromVector(status)

@@ -63,25 +63,31 @@ class JointCommandReceiver(LeafSystem):
         name: JointCommandReceiver
         input_ports:
         - lcm_message
+        - message_undecodable (optional)
         output_ports:
         - q_commanded
         - last_command_seq
         - command_rejected
         - command_timeout
 
-    - ``lcm_message``: the latest ``lcmt_teleop_joint_command`` (an LcmSubscriberSystem's
-      output); a default message (seq 0, no joints) before anything arrives.
+    - ``lcm_message``: the latest ``lcmt_teleop_joint_command`` (the subscriber's output); a
+      default message (seq 0, no joints) before anything arrives.
+    - ``message_undecodable``: optional, (1,): 1 while the newest packet on the channel could
+      not be decoded (:class:`~telesmooth.systems.lcm_safe_subscriber.LcmSafeSubscriber`);
+      unconnected means 0.
     - ``q_commanded``: the last accepted joint positions, rad, (J,); ``initial_position_rad``
       until the first accepted packet.
     - ``last_command_seq``: its sequence number, (1,); −1 before the first.
     - ``command_rejected``: 1 if the newest packet was rejected (see
-      :func:`check_joint_command`), until a packet is accepted, (1,).
+      :func:`check_joint_command`) or could not be decoded, until a packet is accepted, (1,).
     - ``command_timeout``: 1 while no packet was accepted for more than ``timeout_s``,
       counted from t = 0 before the first, (1,).
 
     Update every ``poll_period_s``: a message with seq > last accepted and a non-empty joint
     list is examined once; if valid it becomes the command, otherwise the rejected flag is
-    raised and the command holds. Stale or repeated packets (seq ≤ last) are ignored.
+    raised and the command holds. Stale or repeated packets (seq ≤ last) are ignored. Then,
+    if the newest packet was undecodable, the rejected flag is raised (the command holds; a
+    valid message that arrived before it has still been accepted).
     """
 
     def __init__(self, config: JointCommandReceiverConfig = JointCommandReceiverConfig(), *,
@@ -104,6 +110,7 @@ class JointCommandReceiver(LeafSystem):
         self._config = config
         self._message_input = self.DeclareAbstractInputPort(
             "lcm_message", AbstractValue.Make(lcmt_teleop_joint_command()))
+        self._undecodable_input = self.DeclareVectorInputPort("message_undecodable", 1)
         self._command_state = self.DeclareDiscreteState(q0)
         # [last accepted seq, time of last accepted packet (or 0), rejected, timeout,
         #  last examined seq]
@@ -120,6 +127,9 @@ class JointCommandReceiver(LeafSystem):
 
     def get_lcm_message_input_port(self):
         return self._message_input
+
+    def get_message_undecodable_input_port(self):
+        return self._undecodable_input
 
     def get_q_commanded_output_port(self):
         return self._q_output
@@ -150,6 +160,9 @@ class JointCommandReceiver(LeafSystem):
                 last_seq, last_time, rejected = float(msg.seq), now, 0.0
             else:
                 rejected = 1.0
+        undecodable = self._undecodable_input
+        if undecodable.HasValue(context) and undecodable.Eval(context)[0] > 0.5:
+            rejected = 1.0
         timeout = 1.0 if now - last_time > self._config.timeout_s else 0.0
         discrete_state.get_mutable_vector(self._status_state).SetFromVector(
             [last_seq, last_time, rejected, timeout, examined])

@@ -13,9 +13,9 @@ exception of another type; and nothing that was accepted is lost or altered.
   independent model of which packets are accepted.
 
 Every hypothesis test is derandomized and uses no example database, so runs are reproducible
-and nothing is written into the repository (files go to a temporary folder). Tests marked
-``xfail(strict=True)`` document real bugs of the source; each starts with the minimal failing
-input as an explicit ``@example``.
+and nothing is written into the repository (files go to a temporary folder). The regression
+tests of bugs this fuzzing found (all fixed) say what the bug was in a comment and start with
+its minimal failing input as an explicit ``@example``.
 """
 
 from __future__ import annotations
@@ -344,11 +344,10 @@ def test_joint_csv_arbitrary_text_parses_or_gives_a_value_error(work_dir, text):
 @fuzz(200)
 @given(blob=st.binary(max_size=300))
 def test_joint_csv_arbitrary_bytes_raise_only_value_errors(work_dir, blob):
-    # The exception *type* holds for any bytes (UnicodeDecodeError is a ValueError); that the
-    # message of a non-UTF-8 file names the file is the xfail test further down.
     path = _write(work_dir, blob)
     result, error = _read_or_error(read_joint_csv, path)
-    assert error is None or isinstance(error, ValueError), f"{type(error).__name__}: {error}"
+    if error is not None:   # a ValueError naming the file, also for non-UTF-8 bytes
+        _assert_clear_error(error, path)
 
 
 @fuzz(200)
@@ -406,14 +405,13 @@ def test_cli_smooth_reports_bad_files_as_one_line_errors(work_dir):
         assert str(path) in lines[0]
 
 
-# --- CSV bugs (xfail strict) ---
+# --- CSV regressions ---
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: smoothing/trajectory_io.py read_csv_table opens the file as text and does not "
-    "catch UnicodeDecodeError, so a file with a non-UTF-8 byte (e.g. b't,a\\n0,1\\n1,\\xff\\n', "
-    "a Latin-1 degree sign, ...) raises \"'utf-8' codec can't decode byte 0xff in position 10\", "
-    "naming neither the file nor the line; expected ValueError('<path>: ... line 3 ...')."))
+# Regression (fixed): smoothing/trajectory_io.py read_csv_table opens the file as text and does
+# not catch UnicodeDecodeError, so a file with a non-UTF-8 byte (e.g. b't,a\n0,1\n1,\xff\n', a
+# Latin-1 degree sign, ...) raises "'utf-8' codec can't decode byte 0xff in position 10", naming
+# neither the file nor the line; expected ValueError('<path>: ... line 3 ...').
 @fuzz(40)
 @example(prefix=b"t,a\n0,1\n1,", junk=b"\xff", suffix=b"\n")
 @given(prefix=st.sampled_from([b"t,a\n0,1\n1,", b"t,", b"t,a\n0,1\n"]),
@@ -422,14 +420,14 @@ def test_cli_smooth_reports_bad_files_as_one_line_errors(work_dir):
 def test_joint_csv_non_utf8_bytes_error_names_the_file(work_dir, prefix, junk, suffix):
     path = _write(work_dir, prefix + junk + suffix)
     result, error = _read_or_error(read_joint_csv, path)
-    _assert_clear_error(error, path)
+    line = prefix.count(b"\n") + 1   # the junk is on the line the prefix ends on
+    _assert_clear_error(error, path, f"line {line}:", "UTF-8")
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: smoothing/trajectory_io.py read_csv_table does not catch csv.Error: a cell longer "
-    "than csv.field_size_limit() (131072 chars), e.g. 't,a\\n0,1\\n1,' + '1'*131073, raises "
-    "_csv.Error('field larger than field limit (131072)'), which is not a ValueError, so "
-    "`telesmooth smooth` dies with a traceback; expected a ValueError naming file and line."))
+# Regression (fixed): smoothing/trajectory_io.py read_csv_table does not catch csv.Error: a cell
+# longer than csv.field_size_limit() (131072 chars), e.g. 't,a\n0,1\n1,' + '1'*131073, raises
+# _csv.Error('field larger than field limit (131072)'), which is not a ValueError, so
+# `telesmooth smooth` dies with a traceback; expected a ValueError naming file and line.
 @fuzz(5)
 @example(size=131073, where="cell")
 @given(size=st.integers(131073, 140000), where=st.sampled_from(["cell", "header"]))
@@ -438,14 +436,14 @@ def test_joint_csv_huge_field_is_a_value_error(work_dir, size, where):
         ("t,a\n0,1\n1," + "1" * size + "\n")
     path = _write(work_dir, text)
     result, error = _read_or_error(read_joint_csv, path)
-    _assert_clear_error(error, path)
+    _assert_clear_error(error, path, f"line {1 if where == 'header' else 3}:",
+                        "field larger than field limit")
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: smoothing/trajectory_io.py read_csv_table numbers csv *records*, not file lines: "
-    "after a quoted cell that spans lines the reported line is too small. "
-    "'t,a\\n\"0\\n\",1\\n1,x\\n' says 'line 3, column \\'a\\': \\'x\\' is not a number' "
-    "but 'x' is on line 4 (the docstring promises 'its line number in the file')."))
+# Regression (fixed): smoothing/trajectory_io.py read_csv_table numbers csv *records*, not file
+# lines: after a quoted cell that spans lines the reported line is too small.
+# 't,a\n"0\n",1\n1,x\n' says 'line 3, column \'a\': \'x\' is not a number' but 'x' is on line 4
+# (the docstring promises 'its line number in the file').
 @fuzz(40)
 @example(extra_lines=1, where="data")
 @given(extra_lines=st.integers(1, 3), where=st.sampled_from(["data", "header"]))
@@ -458,14 +456,17 @@ def test_joint_csv_line_numbers_survive_quoted_line_breaks(work_dir, extra_lines
     path = _write(work_dir, text)
     result, error = _read_or_error(read_joint_csv, path)
     _assert_clear_error(error, path, f"line {bad_line},", "'x' is not a number")
+    # A bad cell after a line break inside its own row is located on its own line.
+    path = _write(work_dir, 't,a,b\n0,1,2\n1,"1' + "\r\n" * extra_lines + '",y\n')
+    result, error = _read_or_error(read_joint_csv, path)
+    _assert_clear_error(error, path, f"line {3 + extra_lines}, column 'b'", "'y' is not a number")
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: smoothing/trajectory_io.py check_uniform_time accepts finite time columns whose "
-    "step overflows: 't,a\\n-1e308,0\\n1e308,0\\n' is read without error but "
-    "JointTrajectory.dt_s is inf (t[-1]-t[0] overflows, the NaN deviation passes the "
-    "'>' test); with 3 rows (-1e308, 0, 1e308) the real step 1e308 is reported as inf. "
-    "Expected a ValueError (time step not finite) or the finite step."))
+# Regression (fixed): smoothing/trajectory_io.py check_uniform_time accepts finite time columns
+# whose step overflows: 't,a\n-1e308,0\n1e308,0\n' is read without error but
+# JointTrajectory.dt_s is inf (t[-1]-t[0] overflows, the NaN deviation passes the '>' test);
+# with 3 rows (-1e308, 0, 1e308) the real step 1e308 is reported as inf. Expected a ValueError
+# (time step not finite) or the finite step.
 @fuzz(30)
 @example(t0=-1e308, step=1e308, rows=3)
 @given(t0=st.floats(-1.7e308, -1e307), step=st.floats(1e307, 1.7e308), rows=st.integers(2, 5))
@@ -482,13 +483,13 @@ def test_joint_csv_time_step_is_finite_or_refused(work_dir, t0, step, rows):
         with np.errstate(over="ignore"):
             dt = result.dt_s
         assert math.isfinite(dt) and dt > 0, f"accepted with dt_s = {dt!r} for t = {t!r}"
+        assert math.isclose(dt, step, rel_tol=1e-9)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG (minor): smoothing/trajectory_io.py check_uniform_time adds an undocumented absolute "
-    "slack of 1e-12 s to the documented *relative* 1e-6 uniformity tolerance, so for steps "
-    "below ~1e-7 s grossly non-uniform time columns pass: 't,a\\n0,0\\n1e-13,0\\n5e-13,0\\n' "
-    "(steps 1e-13 and 4e-13 s) is accepted; expected 'the time step must be uniform'."))
+# Regression (fixed): smoothing/trajectory_io.py check_uniform_time adds an undocumented
+# absolute slack of 1e-12 s to the documented *relative* 1e-6 uniformity tolerance, so for steps
+# below ~1e-7 s grossly non-uniform time columns pass: 't,a\n0,0\n1e-13,0\n5e-13,0\n' (steps
+# 1e-13 and 4e-13 s) is accepted; expected 'the time step must be uniform'.
 @fuzz(30)
 @example(dt=1e-13, factor=3.0)
 @given(dt=st.floats(1e-15, 1e-9), factor=st.floats(0.01, 3.0))
@@ -497,6 +498,24 @@ def test_joint_csv_tiny_steps_must_be_uniform_too(work_dir, dt, factor):
     path = _write(work_dir, "t,a\n" + "".join(f"{v!r},0\n" for v in t))
     result, error = _read_or_error(read_joint_csv, path)
     _assert_clear_error(error, path, "uniform")
+
+
+@fuzz(40)
+@example(dt=1e-13, k0=0, rows=3)
+@example(dt=1e-3, k0=1_700_000_000_000, rows=10)   # epoch seconds at 1 kHz
+@given(dt=st.one_of(st.floats(1e-15, 1e-9), st.floats(1e-4, 1e-2)),
+       k0=st.one_of(st.integers(-1000, 1000), st.integers(10**9, 10**13)),
+       rows=st.integers(2, 10))
+def test_joint_csv_uniform_time_is_accepted_at_any_scale(work_dir, dt, k0, rows):
+    # The counterpart of the test above: the relative tolerance (plus the resolution of the
+    # time values themselves) accepts every uniform grid, tiny steps and epoch times alike.
+    t = [(k0 + k) * dt for k in range(rows)]
+    path = _write(work_dir, "t,a\n" + "".join(f"{v!r},0\n" for v in t))
+    result, error = _read_or_error(read_joint_csv, path)
+    assert error is None, f"{type(error).__name__}: {error}"
+    # The step is as exact as times of this magnitude can carry it.
+    resolution = 2 * np.spacing(max(abs(t[0]), abs(t[-1])))
+    assert abs(result.dt_s - dt) <= 1e-9 * dt + resolution
 
 
 # ======================================================================================
@@ -663,14 +682,13 @@ def _corrupt(data: bytes, at: int, xor: int) -> bytes:
     return bytes(data)
 
 
-# --- NPZ bugs (xfail strict) ---
+# --- NPZ regressions ---
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: datasets/haptic_recording.py read_haptic_npz uses `with np.load(...) as archive`; "
-    "given a .npy file (np.save(path, np.arange(3.0))), np.load returns an ndarray and the "
-    "reader raises TypeError(\"'numpy.ndarray' object does not support the context manager "
-    "protocol\"); expected ValueError('<path>: cannot read as NPZ ...')."))
+# Regression (fixed): datasets/haptic_recording.py read_haptic_npz uses `with np.load(...) as
+# archive`; given a .npy file (np.save(path, np.arange(3.0))), np.load returns an ndarray and
+# the reader raises TypeError("'numpy.ndarray' object does not support the context manager
+# protocol"); expected ValueError('<path>: cannot read as NPZ ...').
 @fuzz(20)
 @example(values=[0.0, 1.0, 2.0])
 @given(values=st.lists(FINITE, max_size=5))
@@ -679,14 +697,13 @@ def test_haptic_npz_given_a_npy_file_is_a_value_error(work_dir, values):
     np.save(buffer, np.array(values))
     path = _write(work_dir, buffer.getvalue(), "fuzz.npz")
     result, error = _read_or_error(read_haptic_npz, path)
-    _assert_clear_error(error, path)
+    _assert_clear_error(error, path, "cannot read as NPZ", ".npy")
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: datasets/haptic_recording.py read_haptic_npz: a zip whose members are not .npy "
-    "arrays (members 't_s', 'pose', 'pose_names' holding e.g. b'hello') loads as raw bytes "
-    "and the reader raises AttributeError(\"'bytes' object has no attribute 'ndim'\"); "
-    "expected ValueError naming the file and the member."))
+# Regression (fixed): datasets/haptic_recording.py read_haptic_npz: a zip whose members are not
+# .npy arrays (members 't_s', 'pose', 'pose_names' holding e.g. b'hello') loads as raw bytes and
+# the reader raises AttributeError("'bytes' object has no attribute 'ndim'"); expected
+# ValueError naming the file and the member.
 @fuzz(20)
 @example(payload=b"hello", suffix="")
 @given(payload=st.binary(max_size=20), suffix=st.sampled_from(["", ".txt", ".bin"]))
@@ -697,7 +714,7 @@ def test_haptic_npz_non_array_members_are_a_value_error(work_dir, payload, suffi
             archive.writestr(key + suffix, payload)
     path = _write(work_dir, buffer.getvalue(), "fuzz.npz")
     result, error = _read_or_error(read_haptic_npz, path)
-    _assert_clear_error(error, path)
+    _assert_clear_error(error, path, f"archive member 't_s{suffix}' is not a .npy array")
 
 
 def _good_npz(compressed: bool) -> bytes:
@@ -706,16 +723,14 @@ def _good_npz(compressed: bool) -> bytes:
     return buffer.getvalue()
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: datasets/haptic_recording.py read_haptic_npz catches only OSError, BadZipFile, "
-    "EOFError and ValueError, but a damaged archive also raises zlib.error, "
-    "NotImplementedError and RuntimeError: in np.savez_compressed(GOOD_NPZ) xor-ing byte 63 "
-    "with 0xff (inside a deflate stream) gives zlib.error('Error -3 while decompressing data: "
-    "invalid distance too far back'); in np.savez(GOOD_NPZ) byte 977 ^ 1 (compression method "
-    "of a local header) gives NotImplementedError('That compression method is not "
-    "supported') and byte 975 ^ 1 (encryption flag) gives RuntimeError(\"File 't_s.npy' is "
-    "encrypted, password required for extraction\"). Expected ValueError('<path>: cannot read "
-    "as NPZ ...')."))
+# Regression (fixed): datasets/haptic_recording.py read_haptic_npz catches only OSError,
+# BadZipFile, EOFError and ValueError, but a damaged archive also raises zlib.error,
+# NotImplementedError and RuntimeError: in np.savez_compressed(GOOD_NPZ) xor-ing byte 63 with
+# 0xff (inside a deflate stream) gives zlib.error('Error -3 while decompressing data: invalid
+# distance too far back'); in np.savez(GOOD_NPZ) byte 977 ^ 1 (compression method of a local
+# header) gives NotImplementedError('That compression method is not supported') and byte 975 ^ 1
+# (encryption flag) gives RuntimeError("File 't_s.npy' is encrypted, password required for
+# extraction"). Expected ValueError('<path>: cannot read as NPZ ...').
 @fuzz(120)
 @example(compressed=True, at=63, xor=0xFF)
 @example(compressed=False, at=977, xor=1)
@@ -728,13 +743,15 @@ def test_haptic_npz_damaged_archive_is_a_value_error(work_dir, compressed, at, x
         result, error = _read_or_error(read_haptic_npz, path)
     if error is not None:
         _assert_clear_error(error, path)
+    else:   # the damage missed everything that matters: the data are intact
+        assert _same_floats(result.t_s, GOOD_NPZ["t_s"])
+        assert _same_floats(result.pose, GOOD_NPZ["pose"])
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: datasets/haptic_recording.py HapticRecording.__post_init__ converts with "
-    "np.array(..., dtype=float), which silently drops imaginary parts (ComplexWarning only): "
-    "an NPZ whose pose (or t_s) is complex, e.g. pose=[[1+2j],[3+0j],...], is accepted as "
-    "pose=[[1],[3],...]; expected a ValueError naming the array and its dtype."))
+# Regression (fixed): datasets/haptic_recording.py HapticRecording.__post_init__ converts with
+# np.array(..., dtype=float), which silently drops imaginary parts (ComplexWarning only): an NPZ
+# whose pose (or t_s) is complex, e.g. pose=[[1+2j],[3+0j],...], is accepted as
+# pose=[[1],[3],...]; expected a ValueError naming the array and its dtype.
 @fuzz(30)
 @example(key="pose", imag=2.0)
 @given(key=st.sampled_from(["pose", "t_s"]), imag=FINITE.filter(lambda v: v != 0))
@@ -744,16 +761,15 @@ def test_haptic_npz_complex_arrays_are_not_truncated(work_dir, key, imag):
     arrays[key].flat[0] += 1j * imag
     path = _write(work_dir, _npz_bytes(**arrays), "fuzz.npz")
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+        warnings.simplefilter("error")   # no ComplexWarning either: refused before converting
         result, error = _read_or_error(read_haptic_npz, path)
-    _assert_clear_error(error, path, key)
+    _assert_clear_error(error, path, f"{key} has dtype complex")
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG (message): datasets/haptic_recording.py HapticRecording.__post_init__: a t_s or pose "
-    "array of non-numeric strings (e.g. t_s=np.array(['a', 'b', 'c', 'd'])) raises "
-    "\"<path>: could not convert string to float: np.str_('a')\", naming neither the array "
-    "nor the sample; expected e.g. \"t_s has dtype <U1; expected numbers\"."))
+# Regression (fixed): datasets/haptic_recording.py HapticRecording.__post_init__: a t_s or pose
+# array of non-numeric strings (e.g. t_s=np.array(['a', 'b', 'c', 'd'])) raises "<path>: could
+# not convert string to float: np.str_('a')", naming neither the array nor the sample; expected
+# e.g. "t_s has dtype <U1; expected numbers".
 @fuzz(30)
 @example(key="t_s", text="a")
 @given(key=st.sampled_from(["t_s", "pose"]),
@@ -763,7 +779,7 @@ def test_haptic_npz_string_arrays_error_names_the_array(work_dir, key, text):
     arrays[key] = np.full(GOOD_NPZ[key].shape, text)
     path = _write(work_dir, _npz_bytes(**arrays), "fuzz.npz")
     result, error = _read_or_error(read_haptic_npz, path)
-    _assert_clear_error(error, path, key)
+    _assert_clear_error(error, path, f"{key} has dtype <U", "expected real numbers")
 
 
 # ======================================================================================
@@ -1199,13 +1215,12 @@ def _haptic_dut(pose0=(0.7, 0.0, 0.0), timeout=0.1):
     return dut, context, HapticReceiverModel(pose0, timeout)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: systems/haptic_command_receiver.py HapticCommandReceiver._update_pose treats every "
-    "message with num_axes <= 0 as 'no message' (is_new requires num_axes > 0), so a device "
-    "message with zero axes is neither rejected nor flagged, contrary to the docstring "
-    "('message_rejected: 1 if the newest message had the wrong number of axes'): after a "
-    "valid enabled message (utime 1) at t=0.01, a message (utime 2, num_axes 0) at t=0.02 "
-    "leaves message_rejected = 0 and enable = 1 (expected 1 and 0)."))
+# Regression (fixed): systems/haptic_command_receiver.py HapticCommandReceiver._update_pose
+# treats every message with num_axes <= 0 as 'no message' (is_new requires num_axes > 0), so a
+# device message with zero axes is neither rejected nor flagged, contrary to the docstring
+# ('message_rejected: 1 if the newest message had the wrong number of axes'): after a valid
+# enabled message (utime 1) at t=0.01, a message (utime 2, num_axes 0) at t=0.02 leaves
+# message_rejected = 0 and enable = 1 (expected 1 and 0).
 @fuzz(30)
 @example(utime=2, num_axes=0, dt=0.01)
 @given(utime=st.integers(2, 2**53), num_axes=st.sampled_from([0, -1, -5]),
@@ -1217,36 +1232,40 @@ def test_haptic_receiver_rejects_messages_without_axes(utime, num_axes, dt):
                                       (dt, bad, True)])
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: systems/haptic_command_receiver.py HapticCommandReceiver starts with 'last seen "
-    "utime' = -1.0 as a sentinel, so a first message with utime == -1 (a valid int64 on the "
-    "wire) is taken as already seen and never examined: the pose stays at initial_pose and "
-    "enable stays 0 for as long as that message is the newest (expected: pose = the message's, "
-    "enable = 1)."))
-@fuzz(10)
-@example(pose=[0.8, 0.1, 0.2])
-@given(pose=st.lists(st.floats(-2, 2), min_size=3, max_size=3))
-def test_haptic_receiver_accepts_a_first_message_with_utime_minus_one(pose):
+# Regression (fixed): systems/haptic_command_receiver.py HapticCommandReceiver starts with 'last
+# seen utime' = -1.0 as a sentinel, so a first message with utime == -1 (a valid int64 on the
+# wire) is taken as already seen and never examined: the pose stays at initial_pose and enable
+# stays 0 for as long as that message is the newest (expected: pose = the message's, enable =
+# 1).
+@fuzz(20)
+@example(pose=[0.8, 0.1, 0.2], utime=-1)
+@given(pose=st.lists(st.floats(-2, 2), min_size=3, max_size=3),
+       utime=st.sampled_from([-1, 0, -2**63, 2**63 - 1]))
+def test_haptic_receiver_accepts_a_first_message_with_utime_minus_one(pose, utime):
+    # Any int64 utime, also 0 (only the default-constructed message means "nothing yet").
     dut, context, model = _haptic_dut()
-    _run_haptic(dut, context, model, [(0.01, _haptic_command(-1, pose), True),
+    _run_haptic(dut, context, model, [(0.0, None, True),
+                                      (0.01, _haptic_command(utime, pose), True),
                                       (0.01, None, True)])
+    assert dut.get_enable_output_port().Eval(context)[0] == 1.0
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG (minor): systems/haptic_command_receiver.py keeps the last seen utime in a float64 "
-    "discrete state and compares with numpy, so distinct int64 utimes above 2**53 that round "
-    "to the same double are taken as the same message: after utime 2**53 is accepted, a new "
-    "message with utime 2**53 + 1 (other pose) is ignored, the pose is stale and the clutch "
-    "times out."))
-@fuzz(10)
-@example(offset=1)
-@given(offset=st.integers(1, 1))
-def test_haptic_receiver_distinguishes_large_utimes(offset):
+# Regression (fixed): systems/haptic_command_receiver.py keeps the last seen utime in a float64
+# discrete state and compares with numpy, so distinct int64 utimes above 2**53 that round to the
+# same double are taken as the same message: after utime 2**53 is accepted, a new message with
+# utime 2**53 + 1 (other pose) is ignored, the pose is stale and the clutch times out.
+@fuzz(20)
+@example(base=2**53, offset=1)
+@given(base=st.sampled_from([2**53, 2**62 + 1, -2**63, 2**63 - 2**11, -2**53 - 2]),
+       offset=st.integers(1, 2**10))
+def test_haptic_receiver_distinguishes_large_utimes(base, offset):
     dut, context, model = _haptic_dut()
-    base = 2**53
-    _run_haptic(dut, context, model, [(0.01, _haptic_command(base, [0.8, 0.1, 0.2]), True),
-                                      (0.01, _haptic_command(base + offset, [0.9, 0.1, 0.2]),
-                                       True)])
+    _run_haptic(dut, context, model, [
+        (0.01, _over_the_wire(_haptic_command(base, [0.8, 0.1, 0.2])), True),
+        (0.01, _over_the_wire(_haptic_command(base + offset, [0.9, 0.1, 0.2])), True),
+        (0.01, _over_the_wire(_haptic_command(base, [0.7, 0.1, 0.2])), True)])
+    np.testing.assert_array_equal(dut.get_pose_desired_output_port().Eval(context),
+                                  [0.7, 0.1, 0.2])
 
 
 # ======================================================================================
@@ -1254,50 +1273,71 @@ def test_haptic_receiver_distinguishes_large_utimes(offset):
 # ======================================================================================
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: diagrams/teleoperation.py MakeOnboardDiagram (and AddOperatorTargets for the live "
-    "haptic device) connect a plain LcmSubscriberSystem, which decodes inside the simulator's "
-    "event handling; one malformed packet on TELEOP_JOINT_COMMAND (e.g. b'garbage' -> "
-    "ValueError('Decode error'), or a truncated valid packet -> struct.error) makes every "
-    "later Simulator.AdvanceTo raise, i.e. the onboard process dies (exit 2, or a traceback "
-    "for struct.error) instead of holding the last accepted command and raising "
-    "command_rejected. The same holds for TELEOP_HAPTIC_COMMAND in the ground process."))
+# Regression (fixed): diagrams/teleoperation.py MakeOnboardDiagram (and AddOperatorTargets for
+# the live haptic device) connect a plain LcmSubscriberSystem, which decodes inside the
+# simulator's event handling; one malformed packet on TELEOP_JOINT_COMMAND (e.g. b'garbage' ->
+# ValueError('Decode error'), or a truncated valid packet -> struct.error) makes every later
+# Simulator.AdvanceTo raise, i.e. the onboard process dies (exit 2, or a traceback for
+# struct.error) instead of holding the last accepted command and raising command_rejected. The
+# same holds for TELEOP_HAPTIC_COMMAND in the ground process.
 @fuzz(15)
 @example(kind="joint", payload=b"garbage")
+@example(kind="haptic", payload=b"")
 @given(kind=st.sampled_from(["joint", "haptic"]),
        payload=st.one_of(st.binary(max_size=40), st.sampled_from([b"", b"garbage"])))
 def test_malformed_packets_on_the_channel_do_not_stop_the_receiver(kind, payload):
+    # The process diagrams themselves: onboard (TELEOP_JOINT_COMMAND) and a ground station
+    # with a live haptic device (TELEOP_HAPTIC_COMMAND), on a private memq:// bus.
     from pydrake.lcm import DrakeLcm
     from pydrake.systems.analysis import Simulator
-    from pydrake.systems.framework import DiagramBuilder
-    from pydrake.systems.lcm import LcmInterfaceSystem, LcmSubscriberSystem
+
+    from telesmooth.diagrams.scenario import load_scenario
+    from telesmooth.diagrams.teleoperation import MakeGroundDiagram, MakeOnboardDiagram
 
     lcm = DrakeLcm("memq://")
-    builder = DiagramBuilder()
-    builder.AddSystem(LcmInterfaceSystem(lcm))
     if kind == "joint":
         lcm_type, channel = lcmt_teleop_joint_command, "TELEOP_JOINT_COMMAND"
-        good = _joint_command(0, JOINT_POOL[:2], [0.3, 0.4])
-        receiver = JointCommandReceiver(joint_names=JOINT_POOL[:2], lower_rad=[-2, -2],
-                                        upper_rad=[2, 2], initial_position_rad=[0.0, 0.0])
+        handles = MakeOnboardDiagram(load_scenario(), lcm=lcm)
+        receiver = handles.onboard.receiver
+        subscriber = handles.diagram.GetSubsystemByName("joint_command_subscriber")
+        arm = handles.scenario.arm_description
+        names = list(arm.joint_names)
+        middle = (np.asarray(arm.joint_lower_rad) + np.asarray(arm.joint_upper_rad)) / 2
+        first, second = middle + 0.01, middle - 0.02
+        packets = [_joint_command(seq, names, list(q)) for seq, q in enumerate((first, second))]
         output = receiver.get_q_commanded_output_port()
-        expected = [0.3, 0.4]
+        rejected = receiver.get_command_rejected_output_port()
     else:
         lcm_type, channel = lcmt_teleop_haptic_command, "TELEOP_HAPTIC_COMMAND"
-        good = _haptic_command(1, [0.8, 0.1, 0.2])
-        receiver = HapticCommandReceiver(initial_pose=[0.7, 0.0, 0.0])
+        handles = MakeGroundDiagram(load_scenario(scenario_text="{haptic: {source: lcm}}"),
+                                    lcm=lcm)
+        receiver = handles.ground.haptic
+        assert isinstance(receiver, HapticCommandReceiver)
+        subscriber = handles.diagram.GetSubsystemByName("haptic_subscriber")
+        first, second = [0.72, 0.01, 0.0], [0.71, -0.01, 0.0]
+        packets = [_haptic_command(utime, pose) for utime, pose in ((1, first), (2, second))]
         output = receiver.get_pose_desired_output_port()
-        expected = [0.8, 0.1, 0.2]
+        rejected = receiver.get_message_rejected_output_port()
     assume(payload[:8] != lcm_type._get_packed_fingerprint())
-    subscriber = builder.AddSystem(LcmSubscriberSystem.Make(channel, lcm_type, lcm))
-    builder.AddSystem(receiver)
-    builder.Connect(subscriber.get_output_port(), receiver.get_lcm_message_input_port())
-    diagram = builder.Build()
-    simulator = Simulator(diagram)
+    simulator = Simulator(handles.diagram)
     simulator.Initialize()
-    lcm.Publish(channel, good.encode())
+    root = simulator.get_context()
+    context = receiver.GetMyContextFromRoot(root)
+    subscriber_context = subscriber.GetMyContextFromRoot(root)
+    lcm.Publish(channel, packets[0].encode())
     simulator.AdvanceTo(0.05)
+    np.testing.assert_array_equal(output.Eval(context), first)
+    assert rejected.Eval(context)[0] == 0.0
     lcm.Publish(channel, payload)
-    simulator.AdvanceTo(0.1)    # must not raise: the robot holds
-    context = receiver.GetMyContextFromRoot(simulator.get_context())
-    np.testing.assert_array_equal(output.Eval(context), expected)
+    simulator.AdvanceTo(0.1)    # must not raise: the robot holds, and says so
+    np.testing.assert_array_equal(output.Eval(context), first)
+    assert rejected.Eval(context)[0] == 1.0
+    assert subscriber.get_undecodable_count_output_port().Eval(subscriber_context)[0] == 1.0
+    error = subscriber.get_last_decode_error_output_port().Eval(subscriber_context)
+    assert error.startswith(f"{channel}: packet 2 ({len(payload)} bytes) is not a valid "
+                            f"{lcm_type.__name__}: "), error
+    lcm.Publish(channel, packets[1].encode())   # the next good packet gets through
+    simulator.AdvanceTo(0.15)
+    np.testing.assert_array_equal(output.Eval(context), second)
+    assert rejected.Eval(context)[0] == 0.0
+    assert subscriber.get_message_count_output_port().Eval(subscriber_context)[0] == 2.0

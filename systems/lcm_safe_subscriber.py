@@ -1,0 +1,198 @@
+"""An LCM subscriber that bad bytes cannot kill: the live inputs of both processes.
+
+Drake's ``LcmSubscriberSystem`` decodes inside ``DrakeLcm.HandleSubscriptions``, which the
+``LcmInterfaceSystem`` calls while the simulator advances; one packet that does not decode
+(garbage, a truncated datagram, another message type on the channel) makes
+``Simulator.AdvanceTo`` raise, and the process dies. :class:`LcmSafeSubscriber` subscribes to
+the raw bytes instead, decodes them itself, and turns every failure into data: the last good
+message holds, and counters, a flag and the error text say what was thrown away. The receivers
+(:class:`~telesmooth.systems.joint_command_receiver.JointCommandReceiver`,
+:class:`~telesmooth.systems.haptic_command_receiver.HapticCommandReceiver`) take the flag as a
+rejected message, so the robot keeps holding its last accepted command.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import EventStatus, LeafSystem
+
+__all__ = ["LcmSafeSubscriber"]
+
+_FINGERPRINT_BYTES = 8
+"""lcm-gen Python types start every encoded message with an 8-byte type fingerprint."""
+
+# Layout of the discrete status state.
+_MESSAGE_COUNT, _UNDECODABLE_COUNT, _NEWEST_UNDECODABLE = range(3)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Received:
+    """What has arrived on the channel so far (cumulative; replaced as a whole)."""
+
+    message_count: int = 0          # packets that decoded
+    undecodable_count: int = 0      # packets that did not
+    newest_undecodable: bool = False
+    message_bytes: bytes = b""      # the newest packet that decoded (b"": none yet)
+    last_error: str = ""            # why the newest undecodable packet did not decode
+
+
+class _Inbox:
+    """The LCM handler's side: classifies each packet and keeps a :class:`_Received`.
+
+    Like ``LcmSubscriberSystem``'s receive buffer this lives outside the Context (the handler
+    runs inside ``HandleSubscriptions``, not in an event); the system copies it into its state
+    at the next simulator step. It is a separate object so that the subscription, which lives
+    as long as the ``DrakeLcm``, does not keep the system alive.
+    """
+
+    def __init__(self, channel: str, lcm_type):
+        self._channel = channel
+        self._lcm_type = lcm_type
+        self._fingerprint = lcm_type._get_packed_fingerprint()
+        # One attribute, replaced atomically, so a reader never sees half an update.
+        self.received = _Received()
+
+    def handle(self, data: bytes) -> None:
+        """The LCM handler. It is called from C (``lcm_handle``), so it must never raise."""
+        previous = self.received
+        packet = previous.message_count + previous.undecodable_count + 1
+        try:
+            problem = self._why_undecodable(bytes(data))
+        except Exception as error:  # noqa: BLE001 - nothing may escape into the C callback
+            problem = f"{type(error).__name__}: {error}"
+        if problem is None:
+            self.received = dataclasses.replace(
+                previous, message_count=previous.message_count + 1, newest_undecodable=False,
+                message_bytes=bytes(data))
+        else:
+            self.received = dataclasses.replace(
+                previous, undecodable_count=previous.undecodable_count + 1,
+                newest_undecodable=True,
+                last_error=(f"{self._channel}: packet {packet} ({len(data)} bytes) is not a "
+                            f"valid {self._lcm_type.__name__}: {problem}"))
+
+    def _why_undecodable(self, data: bytes) -> str | None:
+        """None if ``data`` decodes as the channel's type, else the reason (for people)."""
+        try:
+            self._lcm_type.decode(data)
+        # lcm-gen decoders raise ValueError (wrong fingerprint) and struct.error (short or
+        # malformed body), but a damaged string may also give UnicodeDecodeError, an absurd
+        # array length MemoryError, ...: any failure means "not a message of this type".
+        except Exception as error:  # noqa: BLE001
+            head = data[:_FINGERPRINT_BYTES]
+            if len(data) < _FINGERPRINT_BYTES:
+                return (f"shorter than the {_FINGERPRINT_BYTES}-byte type fingerprint "
+                        f"(starts {head!r})")
+            if head != self._fingerprint:
+                return (f"type fingerprint {head.hex()} is not {self._fingerprint.hex()} "
+                        "(another message type on this channel, or garbage)")
+            return f"the body does not decode ({type(error).__name__}: {error})"
+        return None
+
+
+class LcmSafeSubscriber(LeafSystem):
+    r"""Subscribes to one LCM channel; outputs the last message that decoded, never raises.
+
+    .. pydrake_system::
+
+        name: LcmSafeSubscriber
+        output_ports:
+        - lcm_message
+        - message_count
+        - undecodable_count
+        - message_undecodable
+        - last_decode_error
+
+    - ``lcm_message``: the newest packet that decoded as ``lcm_type`` (abstract, an
+      ``lcm_type`` instance, as ``LcmSubscriberSystem``'s output); a default-constructed
+      message before any has.
+    - ``message_count``: number of packets that decoded, (1,).
+    - ``undecodable_count``: number of packets that did not (garbage, truncated, wrong type
+      fingerprint, malformed body), (1,).
+    - ``message_undecodable``: 1 if the newest packet did not decode, else 0, (1,); connect
+      it to a receiver's input of the same name to count it as a rejected message.
+    - ``last_decode_error``: why the newest undecodable packet did not decode (abstract str:
+      channel, packet number, size, reason); ``""`` before any.
+
+    Packets arrive whenever someone pumps the ``lcm`` (an ``LcmInterfaceSystem`` in the
+    diagram does so as the simulator advances, and then schedules a step at the current
+    time). A per-step unrestricted update copies what has arrived into the state, so outputs
+    change at the first step after a packet arrives, at the same simulation time, as with
+    ``LcmSubscriberSystem``. If several packets arrive between two steps only the newest
+    decodable one is kept (all are counted). State: the raw bytes of the newest good packet
+    (the output port decodes them), the error text, and [message_count, undecodable_count,
+    message_undecodable].
+    """
+
+    def __init__(self, *, channel: str, lcm_type, lcm):
+        """Subscribes to ``channel`` on ``lcm`` (a ``DrakeLcmInterface``).
+
+        Args:
+            channel: The LCM channel name.
+            lcm_type: An lcm-gen Python message class (``decode``, ``_get_packed_fingerprint``).
+            lcm: The ``DrakeLcm``; it must outlive the simulation, and be pumped.
+        """
+        super().__init__()
+        if not isinstance(channel, str) or not channel:
+            raise ValueError(f"channel = {channel!r} must be a non-empty string")
+        for attribute in ("decode", "_get_packed_fingerprint"):
+            if not hasattr(lcm_type, attribute):
+                raise ValueError(f"lcm_type = {lcm_type!r} is not an lcm-gen message type "
+                                 f"(it has no {attribute!r})")
+        self._lcm_type = lcm_type
+        self._inbox = _Inbox(channel, lcm_type)
+        lcm.Subscribe(channel, self._inbox.handle)
+        self._bytes_state = self.DeclareAbstractState(AbstractValue.Make(b""))
+        self._error_state = self.DeclareAbstractState(AbstractValue.Make(""))
+        self._status_state = self.DeclareDiscreteState(3)
+        self.DeclarePerStepUnrestrictedUpdateEvent(self._update_received)
+        self._message_output = self.DeclareAbstractOutputPort(
+            "lcm_message", lambda: AbstractValue.Make(lcm_type()), self._calc_lcm_message)
+        self._message_count_output = self.DeclareVectorOutputPort(
+            "message_count", 1,
+            lambda c, o: o.SetAtIndex(0, self._status(c)[_MESSAGE_COUNT]))
+        self._undecodable_count_output = self.DeclareVectorOutputPort(
+            "undecodable_count", 1,
+            lambda c, o: o.SetAtIndex(0, self._status(c)[_UNDECODABLE_COUNT]))
+        self._undecodable_output = self.DeclareVectorOutputPort(
+            "message_undecodable", 1,
+            lambda c, o: o.SetAtIndex(0, self._status(c)[_NEWEST_UNDECODABLE]))
+        self._error_output = self.DeclareStateOutputPort("last_decode_error", self._error_state)
+
+    def get_lcm_message_output_port(self):
+        return self._message_output
+
+    def get_message_count_output_port(self):
+        return self._message_count_output
+
+    def get_undecodable_count_output_port(self):
+        return self._undecodable_count_output
+
+    def get_message_undecodable_output_port(self):
+        return self._undecodable_output
+
+    def get_last_decode_error_output_port(self):
+        return self._error_output
+
+    def _status(self, context):
+        return context.get_discrete_state(self._status_state).get_value()
+
+    def _calc_lcm_message(self, context, output):
+        data = context.get_abstract_state(self._bytes_state).get_value()
+        # These bytes decoded once in the handler, so decoding them again cannot fail.
+        output.set_value(self._lcm_type.decode(data) if data else self._lcm_type())
+
+    def _update_received(self, context, state):
+        received = self._inbox.received
+        status = self._status(context)
+        counts = (received.message_count, received.undecodable_count)
+        if counts == (status[_MESSAGE_COUNT], status[_UNDECODABLE_COUNT]):
+            return EventStatus.DidNothing()
+        state.get_mutable_abstract_state(self._bytes_state).set_value(received.message_bytes)
+        state.get_mutable_abstract_state(self._error_state).set_value(received.last_error)
+        state.get_mutable_discrete_state(self._status_state).SetFromVector(
+            [received.message_count, received.undecodable_count,
+             float(received.newest_undecodable)])
+        return EventStatus.Succeeded()
