@@ -23,6 +23,7 @@ from telesmooth.smoothing.model import (
     STATE_SIZE,
     JerkModel,
 )
+from telesmooth.smoothing.online_hard import OnlineHardLimiter
 from telesmooth.smoothing.reduced_q import OnlineCks, ReducedQConfig
 from telesmooth.smoothing.state_vector import OnlineCksStateVector
 from telesmooth.smoothing.validation import as_per_joint
@@ -30,7 +31,7 @@ from telesmooth.systems.timing import check_period
 
 __all__ = ["ONLINE_SMOOTHER_METHODS", "ReducedQSmoother", "ReducedQSmootherConfig"]
 
-ONLINE_SMOOTHER_METHODS = ("online-cks", "bmfls", "pass-through")
+ONLINE_SMOOTHER_METHODS = ("online-cks", "bmfls", "pass-through", "online-hard")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,8 +39,11 @@ class ReducedQSmootherConfig:
     """Settings of the online smoother.
 
     Attributes:
-        method: ``"online-cks"`` (BMFLS + reduced-Q, default), ``"bmfls"`` (fixed σ), or
-            ``"pass-through"`` (no smoothing: the raw z_{k−L}, with the same latency).
+        method: ``"online-cks"`` (BMFLS + reduced-Q, default), ``"bmfls"`` (fixed σ),
+            ``"pass-through"`` (no smoothing: the raw z_{k−L}, with the same latency), or
+            ``"online-hard"`` (Online-CKS through the hard limiter of
+            :mod:`telesmooth.smoothing.online_hard`: the FD acceleration and jerk of the sent
+            commands never exceed the limits, which must then be finite).
         period_s: Δt, the uplink period, s.
         lag: L, samples of fixed lag (= the FIFO length); 3 for 0.75 s at 4 Hz.
         sigma: σ_0, jerk-noise intensity per joint (scalar or per joint), rad²/s⁵.
@@ -152,7 +156,7 @@ class ReducedQSmoother(LeafSystem):
         sigma = as_per_joint("sigma", config.sigma, n, joint_names)
         model = JerkModel.make(config.period_s, sigma, config.r, num_joints=n,
                                joint_names=joint_names)
-        limits_off = config.method != "online-cks"
+        limits_off = config.method not in ("online-cks", "online-hard")
         self._online = OnlineCks(
             model,
             max_acceleration=np.inf if limits_off else config.max_acceleration_rad_per_s2,
@@ -175,11 +179,19 @@ class ReducedQSmoother(LeafSystem):
                 raise ValueError(f"initial_position_rad[{name!r}] = {float(value)!r} must be finite")
         initial = self._online.initial_state(q0, sigma0)
         lag = config.lag
+        # online-hard: the limiter's state lives in the Context; this object is only scratch.
+        self._limiter = None
+        if config.method == "online-hard":
+            self._limiter = OnlineHardLimiter(
+                dt_s=config.period_s, max_acceleration=config.max_acceleration_rad_per_s2,
+                max_jerk=config.max_jerk_rad_per_s3, q_start=q0, joint_names=joint_names)
 
         self._q_sample_input = self.DeclareVectorInputPort("q_sample", n)
         self._reset_input = self.DeclareVectorInputPort("reset", 1)
         self._online_state = self.DeclareDiscreteState(self._packer.pack(initial))
         self._raw_window_state = self.DeclareDiscreteState(np.tile(q0, lag + 1))
+        self._limiter_state = (None if self._limiter is None else
+                               self.DeclareDiscreteState(self._limiter.get_state_vector()))
         self._tick_cache = self.DeclareCacheEntry(
             "tick", ValueProducer(allocate=lambda: AbstractValue.Make(object()),
                                   calc=lambda c, value: value.set_value(self._compute_tick(c))))
@@ -239,7 +251,8 @@ class ReducedQSmoother(LeafSystem):
         return self._tick_cache.Eval(context)
 
     def _compute_tick(self, context):
-        """(new core state, output block (J, 4), triggered (J,), new raw window) at this time."""
+        """(new core state, output block (J, 4), triggered (J,), new raw window, new limiter
+        state or None) at this time."""
         n, lag = len(self._joint_names), self._config.lag
         z = np.array(self._q_sample_input.Eval(context), dtype=float)
         state = self._packer.unpack(context.get_discrete_state(self._online_state).get_value())
@@ -258,10 +271,28 @@ class ReducedQSmoother(LeafSystem):
         if self._config.method == "pass-through":
             output = np.zeros((n, STATE_SIZE))
             output[:, 0] = new_raw[0]
-        return new_state, output, triggered, new_raw
+        new_limiter = None
+        if self._limiter is not None:
+            limiter = self._limiter
+            limiter.set_state_vector(
+                context.get_discrete_state(self._limiter_state).get_value())
+            if reset:
+                # The collision hold (or a non-finite sample): rest at the held pose, as the
+                # smoother does.
+                limiter.reset(z)
+            limiter.step(output[:, 0])
+            output = np.stack([limiter.current_position, limiter.current_velocity,
+                               limiter.current_acceleration,
+                               (limiter.sent_history[-1] - 3 * limiter.sent_history[-2]
+                                + 3 * limiter.sent_history[-3] - limiter.sent_history[-4])
+                               / self._config.period_s**3], axis=1)
+            new_limiter = limiter.get_state_vector()
+        return new_state, output, triggered, new_raw, new_limiter
 
     def _update_smoother(self, context, discrete_state):
-        new_state, _, _, new_raw = self._tick(context)
+        new_state, _, _, new_raw, new_limiter = self._tick(context)
+        if new_limiter is not None:
+            discrete_state.get_mutable_vector(self._limiter_state).SetFromVector(new_limiter)
         discrete_state.get_mutable_vector(self._online_state).SetFromVector(
             self._packer.pack(new_state))
         discrete_state.get_mutable_vector(self._raw_window_state).SetFromVector(

@@ -17,6 +17,7 @@ from telesmooth.smoothing.model import JerkModel
 from telesmooth.smoothing.reduced_q import OnlineCks, ReducedQConfig
 from telesmooth.smoothing.state_vector import OnlineCksStateVector
 from telesmooth.systems.delay_fifo import DelayFifo, DelayFifoConfig
+from telesmooth.smoothing.online_hard import online_hard_run
 from telesmooth.systems.period_mean import PeriodMean, PeriodMeanConfig
 from telesmooth.systems.reduced_q_smoother import ReducedQSmoother, ReducedQSmootherConfig
 from telesmooth.systems.uplink import Uplink, UplinkConfig
@@ -136,6 +137,26 @@ def test_online_cks_system_equals_the_core_on_the_same_samples(variant):
     core = smoother.online.run(z, start_position=z[0])
     assert core.triggered.any(), "limits must bind for this test to mean something"
     np.testing.assert_allclose(records["q_sent"], core.outputs[:, :, 0], rtol=0, atol=1e-13)
+
+
+def test_online_hard_system_equals_the_core_and_meets_the_limits():
+    z = operator_recording(num_samples=60, num_joints=2, seed=4)
+    config = ReducedQSmootherConfig(method="online-hard", max_acceleration_rad_per_s2=0.02,
+                                    max_jerk_rad_per_s3=0.05)
+    records, smoother = run_chain(z, smoother_config=config)
+    online = smoother.online.run(z, start_position=z[0]).outputs[:, :, 0]
+    expected = online_hard_run(online, DT, max_acceleration=0.02, max_jerk=0.05, q_start=z[0])
+    assert np.abs(expected - online).max() > 1e-3, "the limiter must act for this test to mean"
+    np.testing.assert_allclose(records["q_sent"], expected, rtol=0, atol=1e-13)
+    sent = np.vstack([np.repeat(z[:1], 3, axis=0), records["q_sent"]])
+    assert np.abs(np.diff(sent, 2, axis=0)).max() / DT**2 <= 0.02 * (1 + 1e-9)
+    assert np.abs(np.diff(sent, 3, axis=0)).max() / DT**3 <= 0.05 * (1 + 1e-9)
+
+
+def test_online_hard_needs_finite_limits():
+    with pytest.raises(ValueError, match=r"max_jerk_rad_per_s3\[0\] = inf"):
+        ReducedQSmoother(ReducedQSmootherConfig(method="online-hard", max_jerk_rad_per_s3=np.inf),
+                         joint_names=JOINTS, initial_position_rad=[0.0, 0.0])
 
 
 def test_bmfls_system_equals_fixed_lag_core():
