@@ -45,6 +45,7 @@ from telesmooth.lcm_types import (
 )
 from telesmooth.systems.collision_checker import CollisionChecker
 from telesmooth.systems.collision_event_sender import CollisionEventSender
+from telesmooth.systems.collision_stop import MakeCollisionStopPlanner
 from telesmooth.systems.delay_fifo import DelayFifo
 from telesmooth.systems.flexible_arm import FlexibleJointArm
 from telesmooth.systems.haptic_command_receiver import HapticCommandReceiver
@@ -205,8 +206,17 @@ def AddGroundStation(builder: DiagramBuilder, scenario: Scenario, *,
     builder.Connect(ik.get_output_port(0), checker.get_input_port(0))
 
     # Stage 4: the 0.75 s FIFO, sampling the latest target or the period mean.
+    # With fifo.on_collision = "stop", the jerk-limited stop is planned with the smoother's
+    # limits and checked against the pre-simulator's own collision model.
+    stop_planner = None
+    if scenario.fifo.on_collision == "stop":
+        stop_planner = MakeCollisionStopPlanner(
+            period_s=scenario.fifo.period_s, smoother_config=scenario.smoother, arm=arm,
+            collision_model=checker.collision_model,
+            safety_margin_m=scenario.collision_checker.safety_margin_m)
     fifo = builder.AddNamedSystem("delay_fifo", DelayFifo(
-        scenario.fifo, num_joints=n, initial_position_rad=q0))
+        scenario.fifo, num_joints=n, initial_position_rad=q0,
+        **({} if stop_planner is None else {"collision_stop": stop_planner})))
     builder.Connect(operator.q_sampled, fifo.get_q_target_input_port())
     builder.Connect(checker.GetOutputPort("collision_detected"),
                     fifo.get_collision_detected_input_port())

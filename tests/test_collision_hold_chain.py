@@ -16,7 +16,6 @@ rejected pose commanded, continuation from the rest pose, MODE_HOLD over LCM, an
 to the exact hold where the stop would enter the probe.
 """
 
-import contextlib
 import dataclasses
 
 import numpy as np
@@ -30,7 +29,6 @@ from telesmooth.diagrams.channels import TELEOP_JOINT_COMMAND
 from telesmooth.diagrams.offline import validate_joint_path
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.diagrams.simulation import simulate
-from telesmooth.diagrams import teleoperation
 from telesmooth.diagrams.teleoperation import (
     MakeGroundDiagram,
     MakeOnboardDiagram,
@@ -41,9 +39,7 @@ from telesmooth.lcm_types import lcmt_teleop_joint_command
 from telesmooth.systems.collision_stop import (
     SAME_SIDE_TOLERANCE_RAD,
     STOP_OUTCOMES,
-    MakeCollisionStopPlanner,
 )
-from telesmooth.systems.delay_fifo import DelayFifo
 
 PROBE = """{workspace: {obstacles: [
     {name: fixture, center_m: [0.75, 0.55, 0.0], size_m: [0.3, 0.1, 0.2]},
@@ -140,31 +136,6 @@ def _with_stop(text, policy="stop"):
     return PROBE[:-1] + f", fifo: {{on_collision: {policy}}}" + (", " + text if text else "") + "}"
 
 
-def _fifo_factory(scenario):
-    """DelayFifo with the stop planner of the scenario's pre-simulator, for the real builders.
-
-    Until diagrams/teleoperation.py passes ``collision_stop`` itself (issue 6 part 2 patch),
-    the tests inject it here; once it does, its own keyword wins and this is a no-op.
-    """
-    model = ArmCollisionModel(scenario.arm_description, scenario.workspace_or_default,
-                              distance_horizon_m=scenario.collision_checker.distance_horizon_m)
-    planner = MakeCollisionStopPlanner(
-        period_s=scenario.fifo.period_s, smoother_config=scenario.smoother,
-        arm=scenario.arm_description, collision_model=model,
-        safety_margin_m=scenario.collision_checker.safety_margin_m)
-
-    def make(config, **kwargs):
-        return DelayFifo(config, **{"collision_stop": planner, **kwargs})
-    return make
-
-
-@contextlib.contextmanager
-def _stop_builders(scenario):
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(teleoperation, "DelayFifo", _fifo_factory(scenario))
-        yield
-
-
 @dataclasses.dataclass
 class StopRun:
     q_sent: np.ndarray          # packet k, (M, J)
@@ -175,8 +146,8 @@ class StopRun:
 
 
 def _run_stop(scenario):
-    with _stop_builders(scenario):
-        handles = MakeTeleoperationDiagram(scenario)
+    # The real builders: AddGroundStation passes the stop planner itself.
+    handles = MakeTeleoperationDiagram(scenario)
     simulator = Simulator(handles.diagram)
     simulator.AdvanceTo(DURATION_S + 1e-9)
     context = simulator.get_context()
@@ -299,8 +270,7 @@ def test_stop_packets_go_up_the_link_marked_hold(stop_scenario, stop_run):
     messages = []
     lcm.Subscribe(TELEOP_JOINT_COMMAND,
                   lambda data: messages.append(lcmt_teleop_joint_command.decode(data)))
-    with _stop_builders(stop_scenario):
-        ground = MakeGroundDiagram(stop_scenario, lcm=lcm)
+    ground = MakeGroundDiagram(stop_scenario, lcm=lcm)
     onboard = MakeOnboardDiagram(stop_scenario, lcm=lcm)
     builder = DiagramBuilder()
     builder.AddSystem(ground.diagram)
