@@ -89,6 +89,7 @@ __all__ = [
     "prepare_comparison",
     "response_latency",
     "run_method",
+    "run_summary",
     "set_improvement_ratios",
 ]
 
@@ -167,29 +168,44 @@ class Comparison:
 
     def table(self) -> list[dict]:
         """One row per method with the Table 2 figures (worst joint for per-joint values)."""
-        rows = []
-        for name, run in self.runs.items():
-            m = run.metrics
-            rows.append({
-                "method": name,
-                "delay_s": run.delay_ticks * self.period_s,
-                "fd_acc_max_over_limit": max(m["fd_acceleration"]["max_over_limit"]),
-                "fd_acc_fraction_over": max(m["fd_acceleration"]["fraction_over_limit"]),
-                "fd_jerk_max_over_limit": max(m["fd_jerk"]["max_over_limit"]),
-                "fd_jerk_fraction_over": max(m["fd_jerk"]["fraction_over_limit"]),
-                "position_deformation_mean_rad": max(m["position_deformation_rad"]["mean"]),
-                "cartesian_deformation_mean_m": m["cartesian_deformation_m"]["mean"],
-                "cartesian_deformation_max_m": m["cartesian_deformation_m"]["max"],
-                "e_mean_m": m["response_error_m"]["mean"],
-                "e_max_m": m["response_error_m"]["max"],
-                "operator_error_mean_m": m["operator_error_m"]["mean"],
-                "improvement_ratio_percent": m["improvement_ratio_percent"],
-                "residual_motion_m": m["residual_motion_m"],
-                "settling_time_s": m["settling_time_s"],
-                "added_latency_s": m["added_latency_s"],
-                "presim_violations": m["presim_violations"]["total"],
-            })
-        return rows
+        return [{"method": name, **run_summary(run.metrics),
+                 "improvement_ratio_percent": run.metrics["improvement_ratio_percent"],
+                 "added_latency_s": run.metrics["added_latency_s"]}
+                for name, run in self.runs.items()]
+
+
+def run_summary(metrics: dict) -> dict:
+    """A run's figures as one flat row, the worst joint for per-joint values.
+
+    Everything :func:`run_method` measures on its own; P and the added latency need the
+    original's run and are added by the caller (:meth:`Comparison.table`, the experiment).
+    """
+    def worst(key, field):
+        return float(np.max(metrics[key][field]))
+
+    return {
+        "delay_s": metrics["delay_s"],
+        "fd_acc_max_over_limit": worst("fd_acceleration", "max_over_limit"),
+        "fd_acc_fraction_over": worst("fd_acceleration", "fraction_over_limit"),
+        "fd_jerk_max_over_limit": worst("fd_jerk", "max_over_limit"),
+        "fd_jerk_fraction_over": worst("fd_jerk", "fraction_over_limit"),
+        "original_fd_acc_max_over_limit": worst("original_fd_acceleration", "max_over_limit"),
+        "original_fd_jerk_max_over_limit": worst("original_fd_jerk", "max_over_limit"),
+        "position_deformation_mean_rad": worst("position_deformation_rad", "mean"),
+        "position_deformation_max_rad": worst("position_deformation_rad", "max"),
+        "velocity_deformation_mean_rad_per_s": worst("velocity_deformation_rad_per_s", "mean"),
+        "cartesian_deformation_mean_m": metrics["cartesian_deformation_m"]["mean"],
+        "cartesian_deformation_max_m": metrics["cartesian_deformation_m"]["max"],
+        "e_mean_m": metrics["response_error_m"]["mean"],
+        "e_max_m": metrics["response_error_m"]["max"],
+        "e_sum_m": metrics["response_error_m"]["sum"],
+        "operator_error_mean_m": metrics["operator_error_m"]["mean"],
+        "residual_motion_m": metrics["residual_motion_m"],
+        "settling_time_s": metrics["settling_time_s"],
+        "latency_s": metrics["latency_s"],
+        "link_deflection_max_rad": float(np.max(metrics["link_deflection_max_abs_rad"])),
+        "presim_violations": metrics["presim_violations"]["total"],
+    }
 
 
 def method_settings(scenario: Scenario, method: str) -> tuple[str, SmoothingSettings]:

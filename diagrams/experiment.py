@@ -48,6 +48,7 @@ from telesmooth.diagrams.comparison import (
     operator_samples,
     prepare_comparison,
     run_method,
+    run_summary,
 )
 from telesmooth.diagrams.scenario import Scenario
 from telesmooth.smoothing.metrics import finite_differences
@@ -246,40 +247,6 @@ def _samples(scenario: Scenario) -> OperatorSamples:
     return _SAMPLES_CACHE[key]
 
 
-def _worst(values) -> float:
-    return float(np.max(values))
-
-
-def _run_record(run, setup) -> dict:
-    m = run.metrics
-    over = lambda key, field: _worst(m[key][field])  # noqa: E731 - worst joint
-    return {
-        "fd_acc_max_over_limit": over("fd_acceleration", "max_over_limit"),
-        "fd_acc_fraction_over": over("fd_acceleration", "fraction_over_limit"),
-        "fd_jerk_max_over_limit": over("fd_jerk", "max_over_limit"),
-        "fd_jerk_fraction_over": over("fd_jerk", "fraction_over_limit"),
-        "original_fd_acc_max_over_limit": over("original_fd_acceleration", "max_over_limit"),
-        "original_fd_jerk_max_over_limit": over("original_fd_jerk", "max_over_limit"),
-        "position_deformation_mean_rad": _worst(m["position_deformation_rad"]["mean"]),
-        "position_deformation_max_rad": _worst(m["position_deformation_rad"]["max"]),
-        "velocity_deformation_mean_rad_per_s":
-            _worst(m["velocity_deformation_rad_per_s"]["mean"]),
-        "cartesian_deformation_mean_m": m["cartesian_deformation_m"]["mean"],
-        "cartesian_deformation_max_m": m["cartesian_deformation_m"]["max"],
-        "e_mean_m": m["response_error_m"]["mean"],
-        "e_max_m": m["response_error_m"]["max"],
-        "e_sum_m": m["response_error_m"]["sum"],
-        "operator_error_mean_m": m["operator_error_m"]["mean"],
-        "residual_motion_m": m["residual_motion_m"],
-        "settling_time_s": m["settling_time_s"],
-        "latency_s": m["latency_s"],
-        "delay_s": m["delay_s"],
-        "link_deflection_max_rad": _worst(m["link_deflection_max_abs_rad"]),
-        "presim_violations": m["presim_violations"]["total"],
-        "num_samples": int(setup.q_original.shape[0]),
-    }
-
-
 def _c8_record(base: Scenario, config: ExperimentConfig, shape: str) -> dict:
     """Online-CKS over the shape's seven demonstrations, σ carried over vs. fresh σ_0."""
     carried = None
@@ -331,7 +298,8 @@ def run_task(task: ExperimentTask, base: Scenario, config: ExperimentConfig) -> 
         base_method, settings = _settings(setup, task)
         run = run_method(setup, task.method, settings=settings, base_method=base_method,
                          label=task.label)
-        record["metrics"] = _run_record(run, setup)
+        record["metrics"] = {**run_summary(run.metrics),
+                             "num_samples": int(setup.q_original.shape[0])}
         record["simulated_s"] = setup.duration_s
         if task.method == "online-cks":
             # Where this run sits on each axis of the sensitivity study.

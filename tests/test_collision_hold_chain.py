@@ -97,7 +97,8 @@ def test_nothing_unsafe_reaches_the_robot(scenario, record):
     assert min(distances) - record.min_distance_m.min() > margin
 
 
-def test_hold_packets_go_up_the_link_marked_hold(scenario, record):
+def uplink_messages(scenario) -> dict:
+    """Ground and onboard diagrams over memq LCM; every joint command sent, by sequence."""
     lcm = DrakeLcm("memq://")
     messages = []
     lcm.Subscribe(TELEOP_JOINT_COMMAND,
@@ -107,10 +108,13 @@ def test_hold_packets_go_up_the_link_marked_hold(scenario, record):
     builder = DiagramBuilder()
     builder.AddSystem(ground.diagram)
     builder.AddSystem(onboard.diagram)
-    simulator = Simulator(builder.Build())
-    simulator.AdvanceTo(DURATION_S)
+    Simulator(builder.Build()).AdvanceTo(DURATION_S)
     lcm.HandleSubscriptions(0)
-    by_seq = {m.seq: m for m in messages if m.seq >= 0}
+    return {m.seq: m for m in messages if m.seq >= 0}
+
+
+def test_hold_packets_go_up_the_link_marked_hold(scenario, record):
+    by_seq = uplink_messages(scenario)
     ticks = set(_hold_ticks(record).tolist())
     assert ticks <= set(by_seq)
     for seq, message in by_seq.items():
@@ -266,18 +270,7 @@ def test_stop_falls_back_to_the_hold_when_it_would_enter_the_probe(record):
 
 
 def test_stop_packets_go_up_the_link_marked_hold(stop_scenario, stop_run):
-    lcm = DrakeLcm("memq://")
-    messages = []
-    lcm.Subscribe(TELEOP_JOINT_COMMAND,
-                  lambda data: messages.append(lcmt_teleop_joint_command.decode(data)))
-    ground = MakeGroundDiagram(stop_scenario, lcm=lcm)
-    onboard = MakeOnboardDiagram(stop_scenario, lcm=lcm)
-    builder = DiagramBuilder()
-    builder.AddSystem(ground.diagram)
-    builder.AddSystem(onboard.diagram)
-    Simulator(builder.Build()).AdvanceTo(DURATION_S)
-    lcm.HandleSubscriptions(0)
-    by_seq = {m.seq: m for m in messages if m.seq >= 0}
+    by_seq = uplink_messages(stop_scenario)
     k0, at_rest, release = _stop_ticks(stop_run)
     for seq, message in by_seq.items():
         # MODE_HOLD during the stop (moving positions) and the hold, as for the paper's hold.
