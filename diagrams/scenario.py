@@ -47,7 +47,9 @@ from telesmooth.systems.collision_checker import CollisionCheckerConfig
 from telesmooth.systems.delay_fifo import DelayFifoConfig
 from telesmooth.systems.flexible_arm import FlexibleArmConfig
 from telesmooth.systems.inverse_kinematics import InverseKinematicsConfig
+from telesmooth.link.faults import LinkFaultConfig
 from telesmooth.systems.joint_command_receiver import JointCommandReceiverConfig
+from telesmooth.systems.link_guard import LinkGuardConfig
 from telesmooth.systems.reduced_q_smoother import ReducedQSmootherConfig
 from telesmooth.systems.uplink import UplinkConfig
 
@@ -107,6 +109,29 @@ class HapticScenario:
 
 
 @dataclasses.dataclass(frozen=True)
+class LinkScenario:
+    """The ground-to-onboard link of an in-process run.
+
+    Attributes:
+        simulate: If true, the in-process chain sends each uplink packet the way the two
+            processes do: encoded (``JointCommandSender``), through a simulated link
+            (``LinkChannel``, with ``faults``), examined by the onboard ``JointCommandReceiver``
+            and passed through the ``LinkGuard`` to the robot. If false (default) the
+            uplink's held command drives the robot directly (the paper's set-up). Any
+            enabled fault turns it on.
+        faults: Delay, jitter, loss, duplication, reordering and outages of the uplink
+            (:class:`~telesmooth.link.faults.LinkFaultConfig`; seeded).
+    """
+
+    simulate: bool = False
+    faults: LinkFaultConfig = dataclasses.field(default_factory=LinkFaultConfig)
+
+    @property
+    def active(self) -> bool:
+        return self.simulate or self.faults.enabled
+
+
+@dataclasses.dataclass(frozen=True)
 class Scenario:
     """Every setting of a run.
 
@@ -118,7 +143,11 @@ class Scenario:
         period_mean: If true the FIFO samples the mean of each period instead of the latest
             IK target (the smoother's r is then divided by the samples per period).
         onboard: The flexible-joint plant (its ``arm`` is set from ``arm``).
-        command_receiver: The onboard LCM command receiver (two-process runs).
+        command_receiver: The onboard LCM command receiver (two-process runs, and in-process
+            runs with ``link.simulate``).
+        link_guard: The onboard link guard: jerk-limited ramp-down when commands stop, and
+            the limited re-join when they resume (same runs as ``command_receiver``).
+        link: The simulated link of an in-process run.
         lcm_url: LCM URL of the ground/onboard processes.
         publish_offset_s: Delay after each uplink tick at which the packet is published, s.
         settle_s: Extra simulated time after the operator's recording ends, s.
@@ -140,6 +169,8 @@ class Scenario:
     onboard: FlexibleArmConfig = dataclasses.field(default_factory=FlexibleArmConfig)
     command_receiver: JointCommandReceiverConfig = dataclasses.field(
         default_factory=JointCommandReceiverConfig)
+    link_guard: LinkGuardConfig = dataclasses.field(default_factory=LinkGuardConfig)
+    link: LinkScenario = dataclasses.field(default_factory=LinkScenario)
     lcm_url: str = DEFAULT_LCM_URL
     publish_offset_s: float = 0.001
     settle_s: float = 3.0

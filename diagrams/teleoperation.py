@@ -45,7 +45,7 @@ from telesmooth.lcm_types import (
 )
 from telesmooth.systems.collision_checker import CollisionChecker
 from telesmooth.systems.collision_event_sender import CollisionEventSender
-from telesmooth.systems.collision_stop import MakeCollisionStopPlanner
+from telesmooth.systems.collision_stop import MakeCollisionStopPlanner, PreSimulatorPoseCheck
 from telesmooth.systems.delay_fifo import DelayFifo
 from telesmooth.systems.flexible_arm import FlexibleJointArm
 from telesmooth.systems.haptic_command_receiver import HapticCommandReceiver
@@ -55,6 +55,8 @@ from telesmooth.systems.joint_command_receiver import JointCommandReceiver
 from telesmooth.systems.joint_command_sender import JointCommandSender
 from telesmooth.systems.joint_status_sender import JointStatusSender
 from telesmooth.systems.lcm_safe_subscriber import LcmSafeSubscriber
+from telesmooth.systems.link_channel import LinkChannel
+from telesmooth.systems.link_guard import LinkGuard
 from telesmooth.systems.period_mean import PeriodMean, PeriodMeanConfig
 from telesmooth.systems.reduced_q_smoother import ReducedQSmoother
 from telesmooth.systems.uplink import Uplink
@@ -67,6 +69,8 @@ __all__ = [
     "OnboardHandles",
     "TeleoperationHandles",
     "AddGroundStation",
+    "AddJointCommandSender",
+    "AddOnboardCommandPath",
     "AddOnboardRobot",
     "AddOperatorTargets",
     "OperatorTargets",
@@ -97,6 +101,8 @@ class OnboardHandles:
 
     arm: FlexibleJointArm
     receiver: JointCommandReceiver | None
+    guard: LinkGuard | None = None
+    link: LinkChannel | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -252,6 +258,88 @@ def AddOnboardRobot(builder: DiagramBuilder, scenario: Scenario, *,
     return builder.AddNamedSystem("robot", FlexibleJointArm(config))
 
 
+def AddJointCommandSender(builder: DiagramBuilder, ground: GroundHandles, scenario: Scenario,
+                          *, session_id: int = 0, uplink_key: bytes | None = None
+                          ) -> JointCommandSender:
+    """Adds the uplink's packet former (``lcmt_teleop_joint_command``, signed with a key)."""
+    sender = builder.AddNamedSystem("joint_command_sender", JointCommandSender(
+        joint_names=ground.joint_names, delay_s=scenario.fifo.delay_s, session_id=session_id,
+        uplink_key=uplink_key))
+    uplink = ground.uplink
+    builder.Connect(uplink.get_q_sent_output_port(), sender.get_q_sent_input_port())
+    builder.Connect(uplink.get_state_sent_output_port(), sender.get_state_sent_input_port())
+    builder.Connect(uplink.get_sequence_number_output_port(),
+                    sender.get_sequence_number_input_port())
+    builder.Connect(uplink.get_send_time_output_port(), sender.get_send_time_input_port())
+    builder.Connect(uplink.get_holding_sent_output_port(), sender.get_holding_input_port())
+    return sender
+
+
+def MakeLinkGuard(scenario: Scenario, *, initial_position_rad) -> LinkGuard:
+    """The onboard link guard: the smoother's limits (the robot's), the joint limits and the
+    workspace's collision model (a ramp-down never commands a pose the pre-simulator would
+    reject)."""
+    from telesmooth.arms.collision import ArmCollisionModel
+    from telesmooth.smoothing.validation import as_per_joint
+    arm = scenario.arm_description
+    names = tuple(arm.joint_names)
+    limits = {}
+    for field in ("max_acceleration_rad_per_s2", "max_jerk_rad_per_s3"):
+        values = as_per_joint(field, getattr(scenario.smoother, field), len(names), names,
+                              allow_inf=True)
+        if not np.all(np.isfinite(values)):
+            raise ValueError(
+                f"smoother.{field} = {getattr(scenario.smoother, field)!r} must be finite for "
+                "the onboard link guard (its ramp-down brakes within these limits)")
+        limits[field] = values
+    model = ArmCollisionModel(arm, scenario.workspace_or_default,
+                              distance_horizon_m=scenario.collision_checker.distance_horizon_m)
+    check = PreSimulatorPoseCheck(model, safety_margin_m=scenario.collision_checker.safety_margin_m,
+                                  lower_rad=arm.joint_lower_rad, upper_rad=arm.joint_upper_rad)
+    return LinkGuard(scenario.link_guard, joint_names=names, lower_rad=arm.joint_lower_rad,
+                     upper_rad=arm.joint_upper_rad, initial_position_rad=initial_position_rad,
+                     max_acceleration=limits["max_acceleration_rad_per_s2"],
+                     max_jerk=limits["max_jerk_rad_per_s3"], pose_is_safe=check)
+
+
+def AddOnboardCommandPath(builder: DiagramBuilder, scenario: Scenario, *, packets,
+                          initial_position_rad, uplink_key: bytes | None = None):
+    """Adds the onboard receiver (every packet of ``packets`` examined: authentication,
+    order, validity) and the link guard; returns (receiver, guard). Connect
+    ``guard.get_q_commanded_output_port()`` to the robot."""
+    arm = scenario.arm_description
+    receiver = builder.AddNamedSystem("joint_command_receiver", JointCommandReceiver(
+        scenario.command_receiver, joint_names=arm.joint_names,
+        lower_rad=arm.joint_lower_rad, upper_rad=arm.joint_upper_rad,
+        initial_position_rad=initial_position_rad, uplink_key=uplink_key))
+    builder.Connect(packets, receiver.get_packets_input_port())
+    guard = builder.AddNamedSystem("link_guard", MakeLinkGuard(
+        scenario, initial_position_rad=initial_position_rad))
+    builder.Connect(receiver.get_q_commanded_output_port(), guard.get_q_accepted_input_port())
+    builder.Connect(receiver.get_accepted_count_output_port(),
+                    guard.get_accepted_count_input_port())
+    return receiver, guard
+
+
+def add_link_loggers(builder, receiver: JointCommandReceiver, guard: LinkGuard,
+                     period_s: float) -> dict:
+    """Loggers of the onboard command path: accepted commands, counts, guard output/mode."""
+    return {
+        "q_accepted": LogVectorOutput(receiver.get_q_commanded_output_port(), builder, period_s),
+        "accepted_count": LogVectorOutput(receiver.get_accepted_count_output_port(), builder,
+                                          period_s),
+        "last_command_seq": LogVectorOutput(receiver.get_last_command_seq_output_port(),
+                                            builder, period_s),
+        "rejection_counts": LogVectorOutput(receiver.get_rejection_counts_output_port(),
+                                            builder, period_s),
+        "guard_q_commanded": LogVectorOutput(guard.get_q_commanded_output_port(), builder,
+                                             period_s),
+        "guard_mode": LogVectorOutput(guard.get_guard_mode_output_port(), builder, period_s),
+        "guard_command_count": LogVectorOutput(guard.GetOutputPort("command_count"), builder,
+                                               period_s),
+    }
+
+
 def add_ground_loggers(builder, ground: GroundHandles, scenario: Scenario) -> dict:
     """Loggers of the ground station's targets, flags, packets, FIFO output and σ."""
     haptic_period = scenario.haptic.period_s
@@ -310,44 +398,69 @@ def add_onboard_loggers(builder, robot: FlexibleJointArm, period_s: float) -> di
 
 
 def MakeTeleoperationDiagram(scenario: Scenario, *, meshcat=None) -> TeleoperationHandles:
-    """The whole chain in one process: the uplink's held command drives the plant directly.
+    """The whole chain in one process.
+
+    By default the uplink's held command drives the plant directly. With ``scenario.link``
+    active (``simulate`` or any fault) each packet goes as between the two processes: formed
+    by the ``JointCommandSender``, carried by a ``LinkChannel`` (the faults), examined by the
+    ``JointCommandReceiver`` and passed through the ``LinkGuard`` to the robot (no
+    authentication in process: nobody else can reach the link).
 
     ``meshcat``: optional ``pydrake.geometry.Meshcat``; the robot (and its workspace) are then
     drawn by :func:`telesmooth.diagrams.visualization.AddRobotVisualizer`.
     """
     builder = DiagramBuilder()
     ground = AddGroundStation(builder, scenario)
-    robot = AddOnboardRobot(builder, scenario, initial_position_rad=ground.initial_position_rad)
-    builder.Connect(ground.uplink.get_q_sent_output_port(), robot.GetInputPort("q_commanded"))
+    q0 = ground.initial_position_rad
+    robot = AddOnboardRobot(builder, scenario, initial_position_rad=q0)
+    receiver = guard = link = None
+    logs = {}
+    if scenario.link.active:
+        sender = AddJointCommandSender(builder, ground, scenario)
+        link = builder.AddNamedSystem("link", LinkChannel(
+            scenario.link.faults, lcm_type=lcmt_teleop_joint_command))
+        builder.Connect(sender.get_lcm_message_output_port(),
+                        link.get_lcm_message_input_port())
+        receiver, guard = AddOnboardCommandPath(
+            builder, scenario, packets=link.get_packets_output_port(), initial_position_rad=q0)
+        builder.Connect(guard.get_q_commanded_output_port(), robot.GetInputPort("q_commanded"))
+        logs.update(add_link_loggers(builder, receiver, guard,
+                                     scenario.command_receiver.poll_period_s))
+        logs["link_counts"] = LogVectorOutput(link.get_link_counts_output_port(), builder,
+                                              scenario.uplink.period_s)
+    else:
+        builder.Connect(ground.uplink.get_q_sent_output_port(),
+                        robot.GetInputPort("q_commanded"))
     if meshcat is not None:
         from telesmooth.diagrams.visualization import AddRobotVisualizer
         AddRobotVisualizer(builder, robot, meshcat)
-    logs = add_ground_loggers(builder, ground, scenario)
+    logs.update(add_ground_loggers(builder, ground, scenario))
     logs.update(add_onboard_loggers(builder, robot, scenario.onboard.tracker.period_s))
     diagram = builder.Build()
     diagram.set_name("teleoperation")
-    return TeleoperationHandles(diagram=diagram, ground=ground,
-                                onboard=OnboardHandles(arm=robot, receiver=None), logs=logs,
-                                scenario=scenario)
+    return TeleoperationHandles(
+        diagram=diagram, ground=ground,
+        onboard=OnboardHandles(arm=robot, receiver=receiver, guard=guard, link=link),
+        logs=logs, scenario=scenario)
 
 
-def MakeGroundDiagram(scenario: Scenario, *, lcm: DrakeLcm) -> TeleoperationHandles:
-    """The ground process: ground station → TELEOP_JOINT_COMMAND (+ collision events)."""
+def MakeGroundDiagram(scenario: Scenario, *, lcm: DrakeLcm, session_id: int = 0,
+                      uplink_key: bytes | None = None) -> TeleoperationHandles:
+    """The ground process: ground station → TELEOP_JOINT_COMMAND (+ collision events), and
+    the link status from ONBOARD_JOINT_STATUS (:class:`LinkMonitor`).
+
+    ``session_id`` identifies this run (the onboard side accepts a newer session from its
+    first packet); ``uplink_key`` signs every packet (None: unsigned, in-process tests only).
+    """
+    from telesmooth.systems.link_monitor import LinkMonitor
     builder = DiagramBuilder()
     builder.AddNamedSystem("lcm", LcmInterfaceSystem(lcm))
     ground = AddGroundStation(builder, scenario, lcm=lcm)
     period = scenario.uplink.period_s
     # The packet formed at t_k is published at t_k + publish_offset_s (Drake publishes the
     # pre-update state at an event time, so an offset of 0 would send packet k−1).
-    sender = builder.AddNamedSystem("joint_command_sender", JointCommandSender(
-        joint_names=ground.joint_names, delay_s=scenario.fifo.delay_s))
-    builder.Connect(ground.uplink.get_q_sent_output_port(), sender.get_q_sent_input_port())
-    builder.Connect(ground.uplink.get_state_sent_output_port(),
-                    sender.get_state_sent_input_port())
-    builder.Connect(ground.uplink.get_sequence_number_output_port(),
-                    sender.get_sequence_number_input_port())
-    builder.Connect(ground.uplink.get_send_time_output_port(), sender.get_send_time_input_port())
-    builder.Connect(ground.uplink.get_holding_sent_output_port(), sender.get_holding_input_port())
+    sender = AddJointCommandSender(builder, ground, scenario, session_id=session_id,
+                                   uplink_key=uplink_key)
     command_publisher = builder.AddNamedSystem("joint_command_publisher",
         LcmPublisherSystem.Make(TELEOP_JOINT_COMMAND, lcmt_teleop_joint_command, lcm,
                                 publish_period=period,
@@ -366,38 +479,47 @@ def MakeGroundDiagram(scenario: Scenario, *, lcm: DrakeLcm) -> TeleoperationHand
                                 publish_period=period,
                                 publish_offset=scenario.publish_offset_s))
     builder.Connect(events.get_lcm_message_output_port(), event_publisher.get_input_port())
+    telemetry = builder.AddNamedSystem("joint_status_subscriber", LcmSafeSubscriber(
+        channel=ONBOARD_JOINT_STATUS, lcm_type=lcmt_onboard_joint_status, lcm=lcm))
+    monitor = builder.AddNamedSystem("link_monitor", LinkMonitor(session_id=session_id))
+    builder.Connect(telemetry.get_lcm_message_output_port(), monitor.GetInputPort("telemetry"))
+    builder.Connect(telemetry.get_message_count_output_port(),
+                    monitor.GetInputPort("telemetry_count"))
+    builder.Connect(ground.uplink.get_sequence_number_output_port(),
+                    monitor.GetInputPort("sequence_number"))
     logs = add_ground_loggers(builder, ground, scenario)
+    for name in ("link_status", "telemetry_age", "unacknowledged", "onboard_guard_mode",
+                 "onboard_counts"):
+        logs[name] = LogVectorOutput(monitor.GetOutputPort(name), builder, 0.05)
     diagram = builder.Build()
     diagram.set_name("ground")
     return TeleoperationHandles(diagram=diagram, ground=ground, onboard=None, logs=logs,
                                 lcm=lcm, scenario=scenario)
 
 
-def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm,
-                       initial_position_rad=None) -> TeleoperationHandles:
-    """The onboard process: TELEOP_JOINT_COMMAND → validated hold → plant → telemetry.
+def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm, initial_position_rad=None,
+                       uplink_key: bytes | None = None) -> TeleoperationHandles:
+    """The onboard process: TELEOP_JOINT_COMMAND → receiver → link guard → plant → telemetry.
 
-    The robot holds its last accepted command when packets stop or are rejected.
-    ``initial_position_rad`` defaults to the scenario's (or the IK of its first pose).
+    Every packet is examined (:class:`JointCommandReceiver`: authentication when
+    ``scenario.command_receiver.authentication == "required"``, with ``uplink_key``; order;
+    validity); the :class:`LinkGuard` ramps the robot down within the limits when commands
+    stop and re-joins them without a jump. ``initial_position_rad`` defaults to the
+    scenario's (or the IK of its first pose).
     """
     arm = scenario.arm_description
     if initial_position_rad is None:
         initial_position_rad = initial_position(scenario, make_haptic_recording(scenario))
     builder = DiagramBuilder()
     builder.AddNamedSystem("lcm", LcmInterfaceSystem(lcm))
-    # A subscriber that survives malformed packets (they count as rejected commands).
+    # A subscriber that survives malformed packets; the receiver examines every packet.
     subscriber = builder.AddNamedSystem("joint_command_subscriber", LcmSafeSubscriber(
         channel=TELEOP_JOINT_COMMAND, lcm_type=lcmt_teleop_joint_command, lcm=lcm))
-    receiver = builder.AddNamedSystem("joint_command_receiver", JointCommandReceiver(
-        scenario.command_receiver, joint_names=arm.joint_names,
-        lower_rad=arm.joint_lower_rad, upper_rad=arm.joint_upper_rad,
-        initial_position_rad=initial_position_rad))
-    builder.Connect(subscriber.get_lcm_message_output_port(),
-                    receiver.get_lcm_message_input_port())
-    builder.Connect(subscriber.get_message_undecodable_output_port(),
-                    receiver.get_message_undecodable_input_port())
+    receiver, guard = AddOnboardCommandPath(
+        builder, scenario, packets=subscriber.get_packets_output_port(),
+        initial_position_rad=initial_position_rad, uplink_key=uplink_key)
     robot = AddOnboardRobot(builder, scenario, initial_position_rad=initial_position_rad)
-    builder.Connect(receiver.get_q_commanded_output_port(), robot.GetInputPort("q_commanded"))
+    builder.Connect(guard.get_q_commanded_output_port(), robot.GetInputPort("q_commanded"))
     tracker_period = scenario.onboard.tracker.period_s
     status = builder.AddNamedSystem("joint_status_sender", JointStatusSender(
         num_joints=arm.num_joints, period_s=tracker_period))
@@ -405,24 +527,26 @@ def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm,
     builder.Connect(robot.GetOutputPort("q_motor"), status.get_q_motor_input_port())
     builder.Connect(robot.GetOutputPort("position_measured"),
                     status.get_position_measured_input_port())
-    builder.Connect(receiver.get_last_command_seq_output_port(),
-                    status.get_last_command_seq_input_port())
-    builder.Connect(receiver.get_command_rejected_output_port(),
-                    status.get_command_rejected_input_port())
-    builder.Connect(receiver.get_command_timeout_output_port(),
-                    status.get_command_timeout_input_port())
+    for name in ("last_command_seq", "last_command_session", "command_rejected",
+                 "command_timeout", "accepted_count", "rejection_counts"):
+        builder.Connect(receiver.GetOutputPort(name), status.GetInputPort(name))
+    builder.Connect(guard.get_q_commanded_output_port(), status.get_q_commanded_input_port())
+    builder.Connect(guard.get_guard_mode_output_port(), status.get_guard_mode_input_port())
     status_publisher = builder.AddNamedSystem("joint_status_publisher",
         LcmPublisherSystem.Make(ONBOARD_JOINT_STATUS, lcmt_onboard_joint_status, lcm,
                                 publish_period=tracker_period,
                                 publish_offset=scenario.publish_offset_s))
     builder.Connect(status.get_lcm_message_output_port(), status_publisher.get_input_port())
     logs = add_onboard_loggers(builder, robot, tracker_period)
-    logs["q_commanded"] = LogVectorOutput(receiver.get_q_commanded_output_port(), builder,
-                                          tracker_period)
-    logs["last_command_seq"] = LogVectorOutput(receiver.get_last_command_seq_output_port(),
-                                               builder, tracker_period)
+    logs.update(add_link_loggers(builder, receiver, guard,
+                                 scenario.command_receiver.poll_period_s))
+    logs["q_commanded"] = logs["q_accepted"]
+    logs["last_command_session"] = LogVectorOutput(
+        receiver.get_last_command_session_output_port(), builder,
+        scenario.command_receiver.poll_period_s)
     diagram = builder.Build()
     diagram.set_name("onboard")
     return TeleoperationHandles(diagram=diagram, ground=None,
-                                onboard=OnboardHandles(arm=robot, receiver=receiver),
+                                onboard=OnboardHandles(arm=robot, receiver=receiver,
+                                                       guard=guard),
                                 logs=logs, lcm=lcm, scenario=scenario)

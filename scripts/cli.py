@@ -359,7 +359,36 @@ def _add_process_parsers(subparsers) -> None:
                        help="target real-time rate (default 1; 0 = as fast as possible)")
         p.add_argument("--out", type=Path, default=None,
                        help="folder for the sent/received commands (CSV)")
+        p.add_argument("--uplink-key", type=Path, default=None,
+                       help="file with the shared HMAC key of the uplink (hex; make one with "
+                            "`telesmooth keygen FILE`); default: the environment variable "
+                            "TELESMOOTH_UPLINK_KEY")
+        p.add_argument("--no-auth", action="store_true",
+                       help="send/accept unsigned commands (anyone on the network can then "
+                            "command the robot; for a bench without a key only)")
+        if name == "ground":
+            p.add_argument("--resume-wait", type=float, default=2.0,
+                           help="seconds to wait for the robot's telemetry at start; if it "
+                                "comes, the ground starts from the robot's commanded pose "
+                                "(a restart continues without a jump); 0 = do not wait")
         p.set_defaults(handler=run_process, process=name)
+    p = subparsers.add_parser("keygen", help="write a fresh uplink HMAC key file (mode 0600)")
+    p.add_argument("path", type=Path, help="the key file to create (never overwritten)")
+    p.set_defaults(handler=run_keygen)
+    p = subparsers.add_parser(
+        "link-relay", add_help=False,
+        help="relay the uplink between two LCM URLs through a fault model (delay, jitter, "
+             "loss, duplication, reordering, outages); --help lists its options")
+    p.set_defaults(handler=None)  # main() hands `link-relay …` to telesmooth.link.relay
+
+
+def run_keygen(args) -> int:
+    from telesmooth.link.auth import generate_key_file
+
+    generate_key_file(args.path)
+    print(f"uplink key written to {args.path} (mode 0600); give the same file to the ground "
+          "and onboard processes with --uplink-key")
+    return 0
 
 
 def run_process(args) -> int:
@@ -371,13 +400,23 @@ def run_process(args) -> int:
         raise ValueError(f"--duration = {args.duration!r} must be positive")
     if not args.realtime >= 0:
         raise ValueError(f"--realtime = {args.realtime!r} must be >= 0")
+    key = None
+    if args.no_auth:
+        print(f"telesmooth {args.process}: warning: --no-auth: uplink commands are not "
+              "authenticated; anyone on the network can command the robot", file=sys.stderr)
+    else:
+        from telesmooth.link.auth import load_key
+        key = load_key(args.uplink_key)
     if args.process == "ground":
+        if not args.resume_wait >= 0:
+            raise ValueError(f"--resume-wait = {args.resume_wait!r} must be >= 0")
         return run_ground(scenario, lcm_url=url, duration_s=args.duration,
-                          realtime=args.realtime, out=args.out)
+                          realtime=args.realtime, out=args.out, uplink_key=key,
+                          resume_wait_s=args.resume_wait)
     if args.duration is None:
         raise ValueError("onboard needs --duration (seconds to run)")
     return run_onboard(scenario, lcm_url=url, duration_s=args.duration,
-                       realtime=args.realtime, out=args.out)
+                       realtime=args.realtime, out=args.out, uplink_key=key)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -403,6 +442,10 @@ def main(argv=None) -> int:
         from telesmooth.scripts.bench_core import main as bench_main
 
         return bench_main(argv[1:])
+    if argv[:1] == ["link-relay"]:
+        from telesmooth.link.relay import main as relay_main
+
+        return relay_main(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

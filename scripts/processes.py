@@ -9,6 +9,8 @@ hold → flexible-joint plant → ONBOARD_JOINT_STATUS. Both run against the wal
 from __future__ import annotations
 
 import csv
+import dataclasses
+import json
 import sys
 import time
 from pathlib import Path
@@ -28,7 +30,8 @@ def _check_url(url: str) -> str:
     return url
 
 
-def _advance(simulator, duration_s: float, realtime: float, name: str) -> float:
+def _advance(simulator, duration_s: float, realtime: float, name: str, status=None) -> float:
+    """Runs to ``duration_s`` in 1 s slices, printing progress (and ``status()``, if given)."""
     if realtime > 0:
         simulator.set_target_realtime_rate(realtime)
     simulator.Initialize()
@@ -36,9 +39,50 @@ def _advance(simulator, duration_s: float, realtime: float, name: str) -> float:
     steps = max(1, int(np.ceil(duration_s)))
     for step in range(1, steps + 1):
         simulator.AdvanceTo(min(duration_s, step) + (1e-9 if step == steps else 0.0))
+        extra = "" if status is None else f"; {status()}"
         _log(f"{name}: {simulator.get_context().get_time():6.2f} / {duration_s:.2f} s "
-             f"(wall {time.perf_counter() - start:5.1f} s)")
+             f"(wall {time.perf_counter() - start:5.1f} s){extra}")
     return time.perf_counter() - start
+
+
+def _with_authentication(scenario, uplink_key):
+    """The scenario with the receiver's authentication on when there is a key, else off."""
+    mode = "off" if uplink_key is None else "required"
+    return dataclasses.replace(scenario, command_receiver=dataclasses.replace(
+        scenario.command_receiver, authentication=mode))
+
+
+def robot_commanded_pose(lcm_url: str, scenario, wait_s: float):
+    """The robot's commanded pose from its telemetry (ONBOARD_JOINT_STATUS), or None if no
+    valid telemetry arrives within ``wait_s`` (finite, the arm's joint count, within its
+    joint limits)."""
+    import lcm as lcm_module
+
+    from telesmooth.diagrams.channels import ONBOARD_JOINT_STATUS
+    from telesmooth.lcm_types import lcmt_onboard_joint_status
+
+    arm = scenario.arm_description
+    found = []
+
+    def handle(_channel, data):
+        try:
+            msg = lcmt_onboard_joint_status.decode(data)
+        except Exception:  # noqa: BLE001 - garbage on the channel is not telemetry
+            return
+        q = np.asarray(msg.joint_position_commanded, dtype=float)
+        if q.shape == (arm.num_joints,) and np.all(np.isfinite(q)) and np.all(
+                q >= arm.joint_lower_rad) and np.all(q <= arm.joint_upper_rad):
+            found.append(q)
+
+    bus = lcm_module.LCM(lcm_url)
+    subscription = bus.subscribe(ONBOARD_JOINT_STATUS, handle)
+    deadline = time.monotonic() + wait_s
+    try:
+        while not found and time.monotonic() < deadline:
+            bus.handle_timeout(max(1, int(1000 * min(0.1, deadline - time.monotonic()))))
+    finally:
+        bus.unsubscribe(subscription)
+    return found[-1] if found else None
 
 
 def _write_rows(path: Path, header, rows) -> None:
@@ -51,19 +95,48 @@ def _write_rows(path: Path, header, rows) -> None:
 
 
 def run_ground(scenario, *, lcm_url: str, duration_s: float | None, realtime: float,
-               out: Path | None) -> int:
+               out: Path | None, uplink_key: bytes | None = None,
+               resume_wait_s: float = 0.0) -> int:
+    """The ground process. Its session id is the wall clock at start (µs), so the robot
+    takes a restarted ground process as newer; with ``resume_wait_s`` > 0 it first waits for
+    the robot's telemetry and starts from the robot's commanded pose (no jump on restart)."""
     from pydrake.lcm import DrakeLcm
     from pydrake.systems.analysis import Simulator
 
     from telesmooth.diagrams.simulation import run_duration_s
     from telesmooth.diagrams.teleoperation import MakeGroundDiagram, uplink_packets
+    from telesmooth.systems.link_monitor import LINK_STATUSES
 
-    lcm = DrakeLcm(_check_url(lcm_url))
-    handles = MakeGroundDiagram(scenario, lcm=lcm)
+    _check_url(lcm_url)
+    if resume_wait_s > 0:
+        pose = robot_commanded_pose(lcm_url, scenario, resume_wait_s)
+        if pose is None:
+            _log(f"ground: no robot telemetry within {resume_wait_s:.1f} s; starting from the "
+                 "scenario's initial pose")
+        else:
+            _log(f"ground: resuming from the robot's commanded pose {np.round(pose, 6).tolist()}")
+            scenario = dataclasses.replace(
+                scenario, initial_position_rad=tuple(float(v) for v in pose))
+    session_id = time.time_ns() // 1000
+    lcm = DrakeLcm(lcm_url)
+    handles = MakeGroundDiagram(scenario, lcm=lcm, session_id=session_id, uplink_key=uplink_key)
     duration_s = run_duration_s(scenario, handles.ground.recording, duration_s)
-    _log(f"ground: publishing on {lcm_url} for {duration_s:.2f} s")
+    _log(f"ground: publishing on {lcm_url} for {duration_s:.2f} s (session {session_id}, "
+         f"{'signed' if uplink_key is not None else 'UNSIGNED'})")
     simulator = Simulator(handles.diagram)
-    _advance(simulator, duration_s, realtime, "ground")
+    monitor = handles.diagram.GetSubsystemByName("link_monitor")
+
+    def link_text():
+        context = monitor.GetMyContextFromRoot(simulator.get_context())
+        status = LINK_STATUSES[int(monitor.GetOutputPort("link_status").Eval(context)[0])]
+        counts = monitor.GetOutputPort("onboard_counts").Eval(context).astype(int)
+        age = monitor.GetOutputPort("telemetry_age").Eval(context)[0]
+        return (f"link {status} (telemetry age {age:.2f} s, unacknowledged "
+                f"{int(monitor.GetOutputPort('unacknowledged').Eval(context)[0])}, onboard "
+                f"accepted {counts[0]}, rejected invalid/auth {counts[1]}/{counts[2]}, dropped "
+                f"duplicate/stale {counts[3]}/{counts[4]}, undecodable {counts[5]})")
+
+    _advance(simulator, duration_s, realtime, "ground", status=link_text)
     if out is not None:
         context = simulator.get_context()
         seq, times, states = uplink_packets(handles, context)
@@ -75,27 +148,39 @@ def run_ground(scenario, *, lcm_url: str, duration_s: float | None, realtime: fl
 
 
 def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
-                out: Path | None) -> int:
+                out: Path | None, uplink_key: bytes | None = None) -> int:
+    """The onboard process; with ``uplink_key`` only authentic commands are accepted."""
     from pydrake.lcm import DrakeLcm
     from pydrake.systems.analysis import Simulator
 
-    from telesmooth.diagrams.teleoperation import MakeOnboardDiagram, first_sample_indices
+    from telesmooth.diagrams.teleoperation import MakeOnboardDiagram
+    from telesmooth.systems.link_guard import GUARD_MODES
 
+    scenario = _with_authentication(scenario, uplink_key)
     lcm = DrakeLcm(_check_url(lcm_url))
-    handles = MakeOnboardDiagram(scenario, lcm=lcm)
-    _log(f"onboard: listening on {lcm_url} for {duration_s:.2f} s")
+    handles = MakeOnboardDiagram(scenario, lcm=lcm, uplink_key=uplink_key)
+    _log(f"onboard: listening on {lcm_url} for {duration_s:.2f} s (authentication "
+         f"{scenario.command_receiver.authentication})")
     simulator = Simulator(handles.diagram)
-    _advance(simulator, duration_s, realtime, "onboard")
+    receiver, guard = handles.onboard.receiver, handles.onboard.guard
+
+    def link_text():
+        root = simulator.get_context()
+        context = receiver.GetMyContextFromRoot(root)
+        counts = receiver.rejection_counts(context)
+        mode = GUARD_MODES[int(guard.get_guard_mode_output_port().Eval(
+            guard.GetMyContextFromRoot(root))[0])]
+        last = receiver.get_last_rejection_output_port().Eval(context)
+        return (f"guard {mode}; packets " + ", ".join(f"{k} {v}" for k, v in counts.items())
+                + (f"; last rejection: {last}" if last else ""))
+
+    _advance(simulator, duration_s, realtime, "onboard", status=link_text)
     if out is not None:
         context = simulator.get_context()
         names = handles.onboard.arm.joint_names
-        seq_log = handles.logs["last_command_seq"].FindLog(context)
-        seq = seq_log.data()[0]
-        commanded = handles.logs["q_commanded"].FindLog(context).data().T
-        rows = [[seq[i], seq_log.sample_times()[i], *commanded[i]]
-                for i in first_sample_indices(seq)]
-        _write_rows(Path(out) / "onboard_commands.csv",
-                    ["seq", "received_t"] + [f"q_{j}" for j in names], rows)
+        write_onboard_logs(Path(out), handles, context, names)
+        counts = receiver.rejection_counts(receiver.GetMyContextFromRoot(context))
+        (Path(out) / "onboard_counts.json").write_text(json.dumps(counts, indent=1))
         telemetry = handles.logs["q_link"].FindLog(context)
         tool = handles.logs["position_measured"].FindLog(context).data().T
         _write_rows(Path(out) / "onboard_telemetry.csv",
@@ -103,3 +188,30 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
                     ([t, *q, *p] for t, q, p in zip(telemetry.sample_times(),
                                                     telemetry.data().T, tool)))
     return 0
+
+
+def write_onboard_logs(out: Path, handles, context, names) -> None:
+    """onboard_commands.csv: one row per accepted command (count, session, seq, time, q);
+    onboard_guard.csv: one row per guard command (count, time, mode, q) — what reached the
+    robot's interpolator."""
+    from telesmooth.diagrams.teleoperation import first_sample_indices
+
+    logs = handles.logs
+    count_log = logs["accepted_count"].FindLog(context)
+    count = count_log.data()[0]
+    session = logs["last_command_session"].FindLog(context).data()[0]
+    seq = logs["last_command_seq"].FindLog(context).data()[0]
+    accepted = logs["q_accepted"].FindLog(context).data().T
+    rows = [[count[i], session[i], seq[i], count_log.sample_times()[i], *accepted[i]]
+            for i in first_sample_indices(count) if count[i] > 0]
+    _write_rows(out / "onboard_commands.csv",
+                ["accepted", "session_id", "seq", "received_t"] + [f"q_{j}" for j in names],
+                rows)
+    guard_log = logs["guard_command_count"].FindLog(context)
+    guard_count = guard_log.data()[0]
+    mode = logs["guard_mode"].FindLog(context).data()[0]
+    commanded = logs["guard_q_commanded"].FindLog(context).data().T
+    rows = [[guard_count[i], guard_log.sample_times()[i], mode[i], *commanded[i]]
+            for i in first_sample_indices(guard_count)]
+    _write_rows(out / "onboard_guard.csv",
+                ["command", "t", "mode"] + [f"q_{j}" for j in names], rows)

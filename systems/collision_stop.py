@@ -180,6 +180,12 @@ class CollisionStopPlanner:
             (e.g. :class:`PreSimulatorPoseCheck`). Required: an unchecked stop is never sent.
         joint_names: Labels for errors.
         margin: The limiter's relative shrink of the limits (default 1e-9).
+        allow_reverse: If True, a stop that first moves a joint back past q_hold is planned
+            like any other (every pose is still checked); the default False refuses it
+            (``"hold-reverses"``), which the collision stop needs for its bound
+            |p − q_hold| ≤ |d| on one side. The onboard link guard allows it: a joint that is
+            just finishing an approach when the link goes silent otherwise forces a hold, i.e.
+            a velocity step on every other joint.
 
     Raises:
         ValueError: Limits that are not finite and positive (naming the field, value and
@@ -188,7 +194,7 @@ class CollisionStopPlanner:
 
     def __init__(self, *, dt_s: float, max_acceleration, max_jerk, max_velocity=None,
                  pose_is_safe: Callable[[np.ndarray], bool], joint_names,
-                 margin: float = DEFAULT_MARGIN):
+                 margin: float = DEFAULT_MARGIN, allow_reverse: bool = False):
         if not callable(pose_is_safe):
             raise ValueError(f"pose_is_safe = {pose_is_safe!r} must be callable (q) -> bool")
         self._joint_names = tuple(str(name) for name in joint_names)
@@ -204,6 +210,7 @@ class CollisionStopPlanner:
         self._dt = probe.dt_s
         self._pose_is_safe = pose_is_safe
         self._margin = float(margin)
+        self._allow_reverse = bool(allow_reverse)
         self.max_acceleration = probe.max_acceleration
         self.max_jerk = probe.max_jerk
         self.max_velocity = probe.max_velocity
@@ -288,7 +295,8 @@ class CollisionStopPlanner:
         farthest = np.argmax(np.abs(excursion), axis=0)
         distance = excursion[farthest, np.arange(self.num_joints)]
         # distance = 0 means the joint never moves (its largest excursion is 0).
-        if np.any(excursion * np.sign(distance) < -SAME_SIDE_TOLERANCE_RAD):
+        if not self._allow_reverse and np.any(
+                excursion * np.sign(distance) < -SAME_SIDE_TOLERANCE_RAD):
             return self._fallback("hold-reverses", q_hold)
         return CollisionStopPlan(outcome="stop", commands=commands, hold_position=q_hold,
                                  braking_distance=distance)

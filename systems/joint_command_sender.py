@@ -32,7 +32,9 @@ class JointCommandSender(LeafSystem):
       velocity field (zero when unconnected).
     - ``holding``: 1 if the packet is a hold (Uplink ``holding_sent``) → ``mode = MODE_HOLD``.
     - ``lcm_message``: ``lcmt_teleop_joint_command`` with utime = send_time in µs,
-      sample_utime = utime − ``delay_s``, the joint names, positions and velocities.
+      sample_utime = utime − ``delay_s``, the joint names, positions and velocities,
+      ``session_id`` and, with an ``uplink_key``, the HMAC tag
+      (:func:`telesmooth.link.auth.sign`).
 
     Before the first packet (sequence −1) the message carries seq = −1; the onboard receiver
     ignores it. Publish it with ``LcmPublisherSystem.Make(..., publish_period=period,
@@ -40,8 +42,25 @@ class JointCommandSender(LeafSystem):
     offset of a few ms after each uplink tick sends packet k, not k−1.
     """
 
-    def __init__(self, *, joint_names, delay_s: float):
+    def __init__(self, *, joint_names, delay_s: float, session_id: int = 0,
+                 uplink_key: bytes | None = None):
+        """Args:
+            joint_names: The robot's joints, base to tip.
+            delay_s: The ground's safety delay (sample_utime = utime − delay), s.
+            session_id: This ground run's id (µs since the epoch at process start; 0 in
+                process), so that a restarted ground process is newer than the last one.
+            uplink_key: The shared HMAC key; None sends unsigned packets (in-process only).
+        """
         super().__init__()
+        if isinstance(session_id, bool) or not isinstance(session_id, (int, np.integer)) or \
+                not 0 <= session_id < 2**63:
+            raise ValueError(f"session_id = {session_id!r} must be an integer in [0, 2^63)")
+        self._session_id = int(session_id)
+        self._key = uplink_key
+        if uplink_key is not None:
+            from telesmooth.link.auth import MIN_KEY_BYTES
+            if not isinstance(uplink_key, bytes) or len(uplink_key) < MIN_KEY_BYTES:
+                raise ValueError(f"uplink_key must be at least {MIN_KEY_BYTES} bytes")
         self._joint_names = tuple(str(n) for n in joint_names)
         n = len(self._joint_names)
         if n == 0:
@@ -92,4 +111,8 @@ class JointCommandSender(LeafSystem):
         holding = self._holding_input.HasValue(context) and self._holding_input.Eval(context)[0] > 0.5
         msg.mode = lcmt_teleop_joint_command.MODE_HOLD if holding else \
             lcmt_teleop_joint_command.MODE_TRACK
+        msg.session_id = self._session_id
+        if self._key is not None and msg.seq >= 0:
+            from telesmooth.link.auth import sign
+            msg = sign(msg, self._key)
         output.set_value(msg)

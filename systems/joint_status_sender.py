@@ -23,12 +23,21 @@ class JointStatusSender(LeafSystem):
         - last_command_seq (optional)
         - command_rejected (optional)
         - command_timeout (optional)
+        - last_command_session (optional)
+        - q_commanded (optional)
+        - guard_mode (optional)
+        - accepted_count (optional)
+        - rejection_counts (optional)
         output_ports:
         - lcm_message
 
     - ``q_link``, ``q_motor``: link-side and motor-side joint positions, rad, (J,).
     - ``position_measured``: tool position from the laser tracker, m, (3,).
-    - the three optional flags come from :class:`JointCommandReceiver` (−1/0/0 unconnected).
+    - the three optional flags come from :class:`JointCommandReceiver` (−1/0/0 unconnected),
+      as do ``last_command_session`` (0), ``accepted_count`` (0) and ``rejection_counts``
+      (5 counts in the order of ``joint_command_receiver.REJECTION_CLASSES``; zeros).
+    - ``q_commanded``: what the robot is driven to (the link guard's output), rad, (J,);
+      unconnected: ``q_link``. ``guard_mode``: the link guard's mode (0 unconnected).
     - ``lcm_message``: utime = the context time in µs; seq counts published messages only
       when published periodically (seq = round(t / period)), so gaps reveal drops.
     """
@@ -45,6 +54,11 @@ class JointStatusSender(LeafSystem):
         self._seq_input = self.DeclareVectorInputPort("last_command_seq", 1)
         self._rejected_input = self.DeclareVectorInputPort("command_rejected", 1)
         self._timeout_input = self.DeclareVectorInputPort("command_timeout", 1)
+        self._session_input = self.DeclareVectorInputPort("last_command_session", 1)
+        self._commanded_input = self.DeclareVectorInputPort("q_commanded", self._n)
+        self._guard_mode_input = self.DeclareVectorInputPort("guard_mode", 1)
+        self._accepted_input = self.DeclareVectorInputPort("accepted_count", 1)
+        self._counts_input = self.DeclareVectorInputPort("rejection_counts", 5)
         self._message_output = self.DeclareAbstractOutputPort(
             "lcm_message", lambda: AbstractValue.Make(lcmt_onboard_joint_status()),
             self._calc_lcm_message)
@@ -67,6 +81,21 @@ class JointStatusSender(LeafSystem):
     def get_command_timeout_input_port(self):
         return self._timeout_input
 
+    def get_last_command_session_input_port(self):
+        return self._session_input
+
+    def get_q_commanded_input_port(self):
+        return self._commanded_input
+
+    def get_guard_mode_input_port(self):
+        return self._guard_mode_input
+
+    def get_accepted_count_input_port(self):
+        return self._accepted_input
+
+    def get_rejection_counts_input_port(self):
+        return self._counts_input
+
     def get_lcm_message_output_port(self):
         return self._message_output
 
@@ -85,4 +114,15 @@ class JointStatusSender(LeafSystem):
         msg.last_command_seq = int(round(self._optional(self._seq_input, context, -1.0)))
         msg.command_rejected = bool(self._optional(self._rejected_input, context, 0.0) > 0.5)
         msg.command_timeout = bool(self._optional(self._timeout_input, context, 0.0) > 0.5)
+        msg.last_command_session_id = int(round(
+            self._optional(self._session_input, context, 0.0)))
+        commanded = (self._commanded_input.Eval(context)
+                     if self._commanded_input.HasValue(context) else msg.joint_position_link)
+        msg.joint_position_commanded = [float(v) for v in commanded]
+        msg.guard_mode = int(round(self._optional(self._guard_mode_input, context, 0.0)))
+        msg.accepted_count = int(round(self._optional(self._accepted_input, context, 0.0)))
+        counts = (self._counts_input.Eval(context) if self._counts_input.HasValue(context)
+                  else [0.0] * 5)
+        (msg.rejected_invalid_count, msg.rejected_auth_count, msg.dropped_duplicate_count,
+         msg.dropped_stale_count, msg.undecodable_count) = (int(round(c)) for c in counts)
         output.set_value(msg)

@@ -36,6 +36,12 @@ class _Received:
     newest_undecodable: bool = False
     message_bytes: bytes = b""      # the newest packet that decoded (b"": none yet)
     last_error: str = ""            # why the newest undecodable packet did not decode
+    recent: tuple = ()              # the last RECENT_PACKETS raw packets, (index, bytes)
+
+
+RECENT_PACKETS = 256
+"""How many raw packets the ``packets`` output keeps (at 4 Hz, a minute of uplink; a
+receiver polled every 10 ms sees each of them)."""
 
 
 class _Inbox:
@@ -58,6 +64,7 @@ class _Inbox:
         """The LCM handler. It is called from C (``lcm_handle``), so it must never raise."""
         previous = self.received
         packet = previous.message_count + previous.undecodable_count + 1
+        recent = (previous.recent + ((packet, bytes(data)),))[-RECENT_PACKETS:]
         try:
             problem = self._why_undecodable(bytes(data))
         except Exception as error:  # noqa: BLE001 - nothing may escape into the C callback
@@ -65,11 +72,11 @@ class _Inbox:
         if problem is None:
             self.received = dataclasses.replace(
                 previous, message_count=previous.message_count + 1, newest_undecodable=False,
-                message_bytes=bytes(data))
+                message_bytes=bytes(data), recent=recent)
         else:
             self.received = dataclasses.replace(
                 previous, undecodable_count=previous.undecodable_count + 1,
-                newest_undecodable=True,
+                newest_undecodable=True, recent=recent,
                 last_error=(f"{self._channel}: packet {packet} ({len(data)} bytes) is not a "
                             f"valid {self._lcm_type.__name__}: {problem}"))
 
@@ -104,6 +111,7 @@ class LcmSafeSubscriber(LeafSystem):
         - undecodable_count
         - message_undecodable
         - last_decode_error
+        - packets
 
     - ``lcm_message``: the newest packet that decoded as ``lcm_type`` (abstract, an
       ``lcm_type`` instance, as ``LcmSubscriberSystem``'s output); a default-constructed
@@ -115,6 +123,9 @@ class LcmSafeSubscriber(LeafSystem):
       it to a receiver's input of the same name to count it as a rejected message.
     - ``last_decode_error``: why the newest undecodable packet did not decode (abstract str:
       channel, packet number, size, reason); ``""`` before any.
+    - ``packets``: the last :data:`RECENT_PACKETS` raw packets, decodable or not, as a tuple
+      of (packet number from 1, bytes), oldest first (abstract); for receivers that must
+      examine every packet (duplicates, replays, forgeries), not only the newest.
 
     Packets arrive whenever someone pumps the ``lcm`` (an ``LcmInterfaceSystem`` in the
     diagram does so as the simulator advances, and then schedules a step at the current
@@ -146,6 +157,7 @@ class LcmSafeSubscriber(LeafSystem):
         lcm.Subscribe(channel, self._inbox.handle)
         self._bytes_state = self.DeclareAbstractState(AbstractValue.Make(b""))
         self._error_state = self.DeclareAbstractState(AbstractValue.Make(""))
+        self._packets_state = self.DeclareAbstractState(AbstractValue.Make(()))
         self._status_state = self.DeclareDiscreteState(3)
         self.DeclarePerStepUnrestrictedUpdateEvent(self._update_received)
         self._message_output = self.DeclareAbstractOutputPort(
@@ -160,6 +172,7 @@ class LcmSafeSubscriber(LeafSystem):
             "message_undecodable", 1,
             lambda c, o: o.SetAtIndex(0, self._status(c)[_NEWEST_UNDECODABLE]))
         self._error_output = self.DeclareStateOutputPort("last_decode_error", self._error_state)
+        self._packets_output = self.DeclareStateOutputPort("packets", self._packets_state)
 
     def get_lcm_message_output_port(self):
         return self._message_output
@@ -175,6 +188,9 @@ class LcmSafeSubscriber(LeafSystem):
 
     def get_last_decode_error_output_port(self):
         return self._error_output
+
+    def get_packets_output_port(self):
+        return self._packets_output
 
     def _status(self, context):
         return context.get_discrete_state(self._status_state).get_value()
@@ -192,6 +208,7 @@ class LcmSafeSubscriber(LeafSystem):
             return EventStatus.DidNothing()
         state.get_mutable_abstract_state(self._bytes_state).set_value(received.message_bytes)
         state.get_mutable_abstract_state(self._error_state).set_value(received.last_error)
+        state.get_mutable_abstract_state(self._packets_state).set_value(received.recent)
         state.get_mutable_discrete_state(self._status_state).SetFromVector(
             [received.message_count, received.undecodable_count,
              float(received.newest_undecodable)])

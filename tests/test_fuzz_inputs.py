@@ -810,6 +810,9 @@ def lcm_messages(draw, lcm_type=None):
         msg.joint_position_smoothed = draw(st.lists(DOUBLES, min_size=n, max_size=n))
         msg.joint_velocity_smoothed = draw(st.lists(DOUBLES, min_size=n, max_size=n))
         msg.mode = draw(st.integers(-128, 127))
+        msg.session_id = draw(INT64)
+        msg.auth_tag = draw(st.binary(max_size=40))
+        msg.auth_tag_size = len(msg.auth_tag)
     elif lcm_type is lcmt_teleop_haptic_command:
         msg.utime, msg.seq, msg.num_axes = draw(INT64), draw(INT32), n
         msg.pose_desired = draw(st.lists(DOUBLES, min_size=n, max_size=n))
@@ -821,6 +824,12 @@ def lcm_messages(draw, lcm_type=None):
         msg.tool_position_measured = draw(st.lists(DOUBLES, min_size=3, max_size=3))
         msg.last_command_seq = draw(INT32)
         msg.command_rejected, msg.command_timeout = draw(st.booleans()), draw(st.booleans())
+        msg.last_command_session_id = draw(INT64)
+        msg.joint_position_commanded = draw(st.lists(DOUBLES, min_size=n, max_size=n))
+        msg.guard_mode = draw(st.integers(-128, 127))
+        (msg.accepted_count, msg.rejected_invalid_count, msg.rejected_auth_count,
+         msg.dropped_duplicate_count, msg.dropped_stale_count,
+         msg.undecodable_count) = (draw(INT32) for _ in range(6))
     else:
         msg.utime, msg.seq = draw(INT64), draw(INT32)
         msg.collision_detected, msg.holding = draw(st.booleans()), draw(st.booleans())
@@ -898,12 +907,22 @@ def test_lcm_bit_flips_decode_or_raise_decode_errors(msg, data):
 JOINT_POOL = ("shoulder", "elbow", "wrist", "Joint 4")
 
 
+def _default_joint_command(msg) -> bool:
+    """Equal to lcmt_teleop_joint_command() (compared through vars: some messages here
+    cannot be encoded)."""
+    default = lcmt_teleop_joint_command()
+    def plain(value):   # decoded arrays are tuples, constructed ones lists
+        return list(value) if isinstance(value, (list, tuple)) else value
+    return all(plain(getattr(msg, name)) == plain(getattr(default, name))
+               for name in default.__slots__)
+
+
 class JointReceiverModel:
     """What the receiver's docstrings promise, written without looking at its state layout.
 
-    A packet is examined if it has a non-empty joint list, its seq is newer than the last
-    accepted one (−1 before the first: packets count from 0), and it is not the packet
-    examined just before (same seq: a packet is examined once). It is accepted if it names
+    A packet is examined if it is not the default message, has seq ≥ 0, its
+    (session_id, seq) is newer than the last accepted one's (any before the first), and it
+    is not the packet examined just before (same pair: a packet is examined once). It is accepted if it names
     exactly the robot's joints in order, with one finite position per joint inside
     [lower, upper]; then it becomes the command and clears the rejected flag.
     Otherwise the flag is raised and the command holds. Stale/repeated packets change nothing.
@@ -916,6 +935,7 @@ class JointReceiverModel:
         self.q = list(q0)
         # "last_command_seq: −1 before the first" and "seq ≤ last are ignored".
         self.last_seq, self.last_time, self.rejected, self.examined = -1, 0.0, False, None
+        self.last_pair = None
         self.timeout = False
 
     def acceptable(self, msg) -> bool:
@@ -926,12 +946,16 @@ class JointReceiverModel:
                         for v, lo, hi in zip(positions, self.lower, self.upper)))
 
     def poll(self, msg, now):
-        if msg is not None and msg.num_joints > 0 and \
-                msg.seq > self.last_seq and msg.seq != self.examined:
-            self.examined = msg.seq
+        # The subscriber's default message is not a packet; any other one (even with an
+        # empty joint list) is examined once if newer.
+        pair = None if msg is None else (msg.session_id, msg.seq)
+        if msg is not None and not _default_joint_command(msg) and msg.seq >= 0 and (
+                self.last_pair is None or pair > self.last_pair) and pair != self.examined:
+            self.examined = pair
             if self.acceptable(msg):
                 self.q = [float(v) for v in msg.joint_position_smoothed]
                 self.last_seq, self.last_time, self.rejected = msg.seq, now, False
+                self.last_pair = pair
             else:
                 self.rejected = True
         self.timeout = now - self.last_time > self.timeout_s
@@ -980,7 +1004,7 @@ def _draw_seq(draw, model):
     elif choice == "stale":
         seq = last - draw(st.integers(1, 50))
     elif choice == "examined":
-        seq = model.examined if model.examined is not None else last + 1
+        seq = model.examined[1] if model.examined is not None else last + 1
     else:
         seq = draw(st.one_of(INT32, st.sampled_from([INT32_MIN, INT32_MAX, 0, -1])))
     return min(max(seq, INT32_MIN), INT32_MAX)
@@ -1067,7 +1091,7 @@ def test_joint_command_receiver_holds_last_accepted_and_flags_rejections(setup, 
                 current = msg
                 port.FixValue(context, msg)
         context.SetTime(now)
-        dut.CalcForcedDiscreteVariableUpdate(context, context.get_mutable_discrete_state())
+        dut.CalcForcedUnrestrictedUpdate(context, context.get_mutable_state())
         model.poll(current, now)
         _check_joint_outputs(dut, context, model, lower, upper)
 

@@ -93,7 +93,7 @@ def test_ports_and_output_before_any_packet():
     dut = harness.dut
     assert [dut.get_output_port(i).get_name() for i in range(dut.num_output_ports())] == [
         "lcm_message", "message_count", "undecodable_count", "message_undecodable",
-        "last_decode_error"]
+        "last_decode_error", "packets"]
     assert dut.num_input_ports() == 0
     harness.send()
     msg = harness.message()

@@ -93,7 +93,7 @@ def test_receiver_rejects_unsafe_packets_and_holds():
     def deliver(msg, t):
         context.SetTime(t)
         port.FixValue(context, msg)
-        dut.CalcForcedDiscreteVariableUpdate(context, context.get_mutable_discrete_state())
+        dut.CalcForcedUnrestrictedUpdate(context, context.get_mutable_state())
         return (dut.get_q_commanded_output_port().Eval(context).copy(),
                 dut.get_command_rejected_output_port().Eval(context)[0],
                 dut.get_last_command_seq_output_port().Eval(context)[0])

@@ -37,6 +37,9 @@ def _command():
     msg.joint_position_smoothed = [0.1, -0.2, 0.3]
     msg.joint_velocity_smoothed = [0.01, 0.0, -0.02]
     msg.mode = lcmt_teleop_joint_command.MODE_HOLD
+    msg.session_id = 1_790_000_000_000_000
+    msg.auth_tag = bytes(range(32))
+    msg.auth_tag_size = 32
     return msg
 
 
@@ -47,6 +50,11 @@ def _status():
     msg.joint_position_motor = [0.51, 0.24]
     msg.tool_position_measured = [1.0, 0.0, 0.45]
     msg.last_command_seq, msg.command_rejected, msg.command_timeout = -1, False, True
+    msg.last_command_session_id = 1_790_000_000_000_000
+    msg.joint_position_commanded = [0.49, 0.26]
+    msg.guard_mode = 1
+    (msg.accepted_count, msg.rejected_invalid_count, msg.rejected_auth_count,
+     msg.dropped_duplicate_count, msg.dropped_stale_count, msg.undecodable_count) = range(6)
     return msg
 
 
@@ -74,7 +82,18 @@ def test_wrong_type_and_truncated_bytes_are_refused():
     with pytest.raises(ValueError, match="Decode error"):
         lcmt_onboard_joint_status.decode(data)
     with pytest.raises(struct.error):
-        lcmt_teleop_joint_command.decode(data[:-5])
+        lcmt_teleop_joint_command.decode(data[:-50])   # cut inside the doubles
+
+
+def test_a_truncated_auth_tag_decodes_short_and_fails_verification():
+    # lcm-gen's Python reads a byte array with buf.read(n), which returns what is left: a
+    # packet cut inside its tag still decodes, with a tag shorter than auth_tag_size. The
+    # receiver's HMAC check refuses it.
+    from telesmooth.link.auth import verify
+    data = _command().encode()
+    short = lcmt_teleop_joint_command.decode(data[:-5])
+    assert short.auth_tag_size == 32 and len(short.auth_tag) == 27
+    assert verify(short, b"k" * 32) is not None
 
 
 def test_count_mismatch_cannot_be_encoded():

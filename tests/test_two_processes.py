@@ -20,6 +20,7 @@ from telesmooth.diagrams.channels import TELEOP_JOINT_COMMAND
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.diagrams.simulation import simulate
 from telesmooth.lcm_types import lcmt_teleop_joint_command
+from telesmooth.link.auth import generate_key_file, verify
 
 SCENARIO_TEXT = ("{haptic: {source: synthetic, synthetic: {duration_s: 4.0, hold_start_s: 0.5, "
                  "hold_end_s: 0.5}}, settle_s: 0.0}")
@@ -39,15 +40,19 @@ def two_process_run(tmp_path_factory):
     url = f"udpm://239.255.76.67:{port}?ttl=0"
     bin_dir = Path(sys.executable).parent
     log_path = out / "uplink.lcmlog"
+    key_path = out / "uplink.key"
+    generate_key_file(key_path)
     logger = subprocess.Popen(
         [str(bin_dir / "lcm-logger"), "-q", "-f", f"--lcm-url={url}", "-c",
          TELEOP_JOINT_COMMAND, str(log_path)], start_new_session=True)
-    common = ["--scenario-text", SCENARIO_TEXT, "--lcm-url", url, "--out", str(out)]
+    common = ["--scenario-text", SCENARIO_TEXT, "--lcm-url", url, "--out", str(out),
+              "--uplink-key", str(key_path)]
     telesmooth = [sys.executable, "-m", "telesmooth.scripts.cli"]
     onboard = subprocess.Popen(telesmooth + ["onboard", "--duration", str(DURATION_S + 1.5)]
                                + common, stderr=subprocess.PIPE, text=True)
     time.sleep(1.0)   # the onboard process and the logger subscribe first
-    ground = subprocess.run(telesmooth + ["ground", "--duration", str(DURATION_S)] + common,
+    ground = subprocess.run(telesmooth + ["ground", "--duration", str(DURATION_S),
+                                          "--resume-wait", "0"] + common,
                             stderr=subprocess.PIPE, text=True, timeout=120)
     onboard_err = onboard.communicate(timeout=120)[1]
     time.sleep(0.3)
@@ -55,11 +60,11 @@ def two_process_run(tmp_path_factory):
     logger.wait(timeout=10)
     assert ground.returncode == 0, ground.stderr
     assert onboard.returncode == 0, onboard_err
-    return out, log_path
+    return out, log_path, key_path.read_text().strip()
 
 
 def test_logged_uplink_decodes_at_4hz_and_equals_the_single_process_run(two_process_run):
-    out, log_path = two_process_run
+    out, log_path, key_hex = two_process_run
     messages = [lcmt_teleop_joint_command.decode(event.data)
                 for event in lcm.EventLog(str(log_path), "r")
                 if event.channel == TELEOP_JOINT_COMMAND]
@@ -74,6 +79,9 @@ def test_logged_uplink_decodes_at_4hz_and_equals_the_single_process_run(two_proc
     for message, q in zip(messages, record.q_sent):
         np.testing.assert_array_equal(message.joint_position_smoothed, q)
         assert list(message.joint_name) == list(record.joint_names)
+        # Signed with the shared key, one session (the ground process's start, µs).
+        assert verify(message, bytes.fromhex(key_hex)) is None
+        assert message.session_id == messages[0].session_id > 1.7e15
 
     ground = _read(out / "ground_commands.csv")
     np.testing.assert_array_equal(ground[:len(messages), 2:],
@@ -81,12 +89,13 @@ def test_logged_uplink_decodes_at_4hz_and_equals_the_single_process_run(two_proc
 
 
 def test_onboard_process_accepted_the_commands(two_process_run):
-    out, log_path = two_process_run
+    out, log_path, _ = two_process_run
     messages = {m.seq: m for m in (lcmt_teleop_joint_command.decode(e.data)
                                    for e in lcm.EventLog(str(log_path), "r"))}
-    onboard = _read(out / "onboard_commands.csv")
+    onboard = _read(out / "onboard_commands.csv")   # accepted, session, seq, t, q…
     assert onboard.shape[0] >= len(messages) - 2
+    np.testing.assert_array_equal(onboard[:, 0], np.arange(1, onboard.shape[0] + 1))
     for row in onboard:
-        np.testing.assert_array_equal(row[2:], messages[int(row[0])].joint_position_smoothed)
+        np.testing.assert_array_equal(row[4:], messages[int(row[2])].joint_position_smoothed)
     telemetry = _read(out / "onboard_telemetry.csv")
     assert np.all(np.isfinite(telemetry))

@@ -15,11 +15,11 @@ class lcmt_onboard_joint_status(object):
     Channel: ONBOARD_JOINT_STATUS, nominal 100 Hz.
     """
 
-    __slots__ = ["utime", "seq", "num_joints", "joint_position_link", "joint_position_motor", "tool_position_measured", "last_command_seq", "command_rejected", "command_timeout"]
+    __slots__ = ["utime", "seq", "num_joints", "joint_position_link", "joint_position_motor", "tool_position_measured", "last_command_seq", "command_rejected", "command_timeout", "last_command_session_id", "joint_position_commanded", "guard_mode", "accepted_count", "rejected_invalid_count", "rejected_auth_count", "dropped_duplicate_count", "dropped_stale_count", "undecodable_count"]
 
-    __typenames__ = ["int64_t", "int32_t", "int32_t", "double", "double", "double", "int32_t", "boolean", "boolean"]
+    __typenames__ = ["int64_t", "int32_t", "int32_t", "double", "double", "double", "int32_t", "boolean", "boolean", "int64_t", "double", "int8_t", "int32_t", "int32_t", "int32_t", "int32_t", "int32_t", "int32_t"]
 
-    __dimensions__ = [None, None, None, ["num_joints"], ["num_joints"], [3], None, None, None]
+    __dimensions__ = [None, None, None, ["num_joints"], ["num_joints"], [3], None, None, None, None, ["num_joints"], None, None, None, None, None, None, None]
 
     def __init__(self):
         self.utime = 0
@@ -69,6 +69,62 @@ class lcmt_onboard_joint_status(object):
         LCM Type: boolean
         """
 
+        self.last_command_session_id = 0
+        """
+        session_id of the last accepted joint command; 0 before the first.
+        LCM Type: int64_t
+        """
+
+        self.joint_position_commanded = []
+        """
+        What the robot is driven to now (the onboard link guard's output: the last accepted
+        command, or its jerk-limited ramp-down when commands stopped), rad. A restarted ground
+        process starts from it.
+        LCM Type: double[num_joints]
+        """
+
+        self.guard_mode = 0
+        """
+        Link guard mode: 0 track, 1 stopping (ramp-down), 2 held, 3 resuming.
+        LCM Type: int8_t
+        """
+
+        self.accepted_count = 0
+        """
+        Counts since the onboard process started, one per packet.
+        LCM Type: int32_t
+        """
+
+        self.rejected_invalid_count = 0
+        """
+        became the command
+        LCM Type: int32_t
+        """
+
+        self.rejected_auth_count = 0
+        """
+        wrong joints, non-finite or out of the joint limits
+        LCM Type: int32_t
+        """
+
+        self.dropped_duplicate_count = 0
+        """
+        unsigned or forged (bad HMAC)
+        LCM Type: int32_t
+        """
+
+        self.dropped_stale_count = 0
+        """
+        same (session_id, seq) as the last accepted (or replay)
+        LCM Type: int32_t
+        """
+
+        self.undecodable_count = 0
+        """
+        older (session_id, seq) than the last accepted
+        LCM Type: int32_t
+        """
+
 
     def encode(self):
         buf = BytesIO()
@@ -81,7 +137,9 @@ class lcmt_onboard_joint_status(object):
         buf.write(struct.pack('>%dd' % self.num_joints, *self.joint_position_link[:self.num_joints]))
         buf.write(struct.pack('>%dd' % self.num_joints, *self.joint_position_motor[:self.num_joints]))
         buf.write(struct.pack('>3d', *self.tool_position_measured[:3]))
-        buf.write(struct.pack(">ibb", self.last_command_seq, self.command_rejected, self.command_timeout))
+        buf.write(struct.pack(">ibbq", self.last_command_seq, self.command_rejected, self.command_timeout, self.last_command_session_id))
+        buf.write(struct.pack('>%dd' % self.num_joints, *self.joint_position_commanded[:self.num_joints]))
+        buf.write(struct.pack(">biiiiii", self.guard_mode, self.accepted_count, self.rejected_invalid_count, self.rejected_auth_count, self.dropped_duplicate_count, self.dropped_stale_count, self.undecodable_count))
 
     @staticmethod
     def decode(data: bytes):
@@ -103,12 +161,15 @@ class lcmt_onboard_joint_status(object):
         self.last_command_seq = struct.unpack(">i", buf.read(4))[0]
         self.command_rejected = bool(struct.unpack('b', buf.read(1))[0])
         self.command_timeout = bool(struct.unpack('b', buf.read(1))[0])
+        self.last_command_session_id = struct.unpack(">q", buf.read(8))[0]
+        self.joint_position_commanded = struct.unpack('>%dd' % self.num_joints, buf.read(self.num_joints * 8))
+        self.guard_mode, self.accepted_count, self.rejected_invalid_count, self.rejected_auth_count, self.dropped_duplicate_count, self.dropped_stale_count, self.undecodable_count = struct.unpack(">biiiiii", buf.read(25))
         return self
 
     @staticmethod
     def _get_hash_recursive(parents):
         if lcmt_onboard_joint_status in parents: return 0
-        tmphash = (0xcef8e5fe3ff8d655) & 0xffffffffffffffff
+        tmphash = (0xa0fcea5773bda9da) & 0xffffffffffffffff
         tmphash  = (((tmphash<<1)&0xffffffffffffffff) + (tmphash>>63)) & 0xffffffffffffffff
         return tmphash
     _packed_fingerprint = None

@@ -16,11 +16,11 @@ class lcmt_teleop_joint_command(object):
     process holds its last accepted command (the robot holds).
     """
 
-    __slots__ = ["utime", "seq", "sample_utime", "num_joints", "joint_name", "joint_position_smoothed", "joint_velocity_smoothed", "mode"]
+    __slots__ = ["utime", "seq", "sample_utime", "num_joints", "joint_name", "joint_position_smoothed", "joint_velocity_smoothed", "mode", "session_id", "auth_tag_size", "auth_tag"]
 
-    __typenames__ = ["int64_t", "int32_t", "int64_t", "int32_t", "string", "double", "double", "int8_t"]
+    __typenames__ = ["int64_t", "int32_t", "int64_t", "int32_t", "string", "double", "double", "int8_t", "int64_t", "int16_t", "byte"]
 
-    __dimensions__ = [None, None, None, None, ["num_joints"], ["num_joints"], ["num_joints"], None]
+    __dimensions__ = [None, None, None, None, ["num_joints"], ["num_joints"], ["num_joints"], None, None, None, ["auth_tag_size"]]
 
     MODE_TRACK = 0
     MODE_HOLD = 1
@@ -72,6 +72,25 @@ class lcmt_teleop_joint_command(object):
         LCM Type: int8_t
         """
 
+        self.session_id = 0
+        """
+        The ground process run that sent this packet: microseconds since the Unix epoch at
+        its start (0 in in-process simulation). Onboard accepts a packet only if
+        (session_id, seq) is greater than that of the last accepted one, so a restarted ground
+        process is accepted from its first packet and a replay of any earlier packet is not.
+        LCM Type: int64_t
+        """
+
+        self.auth_tag_size = 0
+        """
+        HMAC-SHA256 (telesmooth.link.auth) over the encoding of this message with
+        auth_tag_size = 0, i.e. over every other field, seq and session_id included.
+        auth_tag_size = 0: unsigned (accepted only where authentication is off).
+        LCM Type: int16_t
+        """
+
+        self.auth_tag = b""
+        """ LCM Type: byte[auth_tag_size] """
 
     def encode(self):
         buf = BytesIO()
@@ -88,7 +107,8 @@ class lcmt_teleop_joint_command(object):
             buf.write(b"\0")
         buf.write(struct.pack('>%dd' % self.num_joints, *self.joint_position_smoothed[:self.num_joints]))
         buf.write(struct.pack('>%dd' % self.num_joints, *self.joint_velocity_smoothed[:self.num_joints]))
-        buf.write(struct.pack(">b", self.mode))
+        buf.write(struct.pack(">bqh", self.mode, self.session_id, self.auth_tag_size))
+        buf.write(bytearray(self.auth_tag[:self.auth_tag_size]))
 
     @staticmethod
     def decode(data: bytes):
@@ -110,13 +130,14 @@ class lcmt_teleop_joint_command(object):
             self.joint_name.append(buf.read(__joint_name_len)[:-1].decode('utf-8', 'replace'))
         self.joint_position_smoothed = struct.unpack('>%dd' % self.num_joints, buf.read(self.num_joints * 8))
         self.joint_velocity_smoothed = struct.unpack('>%dd' % self.num_joints, buf.read(self.num_joints * 8))
-        self.mode = struct.unpack(">b", buf.read(1))[0]
+        self.mode, self.session_id, self.auth_tag_size = struct.unpack(">bqh", buf.read(11))
+        self.auth_tag = buf.read(self.auth_tag_size)
         return self
 
     @staticmethod
     def _get_hash_recursive(parents):
         if lcmt_teleop_joint_command in parents: return 0
-        tmphash = (0xea0f272b1e9a6f6b) & 0xffffffffffffffff
+        tmphash = (0xd37c0bf027d43215) & 0xffffffffffffffff
         tmphash  = (((tmphash<<1)&0xffffffffffffffff) + (tmphash>>63)) & 0xffffffffffffffff
         return tmphash
     _packed_fingerprint = None
