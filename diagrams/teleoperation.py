@@ -45,7 +45,11 @@ from telesmooth.lcm_types import (
 )
 from telesmooth.systems.collision_checker import CollisionChecker
 from telesmooth.systems.collision_event_sender import CollisionEventSender
-from telesmooth.systems.collision_stop import MakeCollisionStopPlanner, PreSimulatorPoseCheck
+from telesmooth.systems.collision_stop import (
+    MakeCollisionStopPlanner,
+    PreSimulatorPoseCheck,
+    finite_smoother_limits,
+)
 from telesmooth.systems.delay_fifo import DelayFifo
 from telesmooth.systems.flexible_arm import FlexibleJointArm
 from telesmooth.systems.haptic_command_receiver import HapticCommandReceiver
@@ -280,18 +284,11 @@ def MakeLinkGuard(scenario: Scenario, *, initial_position_rad) -> LinkGuard:
     workspace's collision model (a ramp-down never commands a pose the pre-simulator would
     reject)."""
     from telesmooth.arms.collision import ArmCollisionModel
-    from telesmooth.smoothing.validation import as_per_joint
     arm = scenario.arm_description
     names = tuple(arm.joint_names)
-    limits = {}
-    for field in ("max_acceleration_rad_per_s2", "max_jerk_rad_per_s3"):
-        values = as_per_joint(field, getattr(scenario.smoother, field), len(names), names,
-                              allow_inf=True)
-        if not np.all(np.isfinite(values)):
-            raise ValueError(
-                f"smoother.{field} = {getattr(scenario.smoother, field)!r} must be finite for "
-                "the onboard link guard (its ramp-down brakes within these limits)")
-        limits[field] = values
+    limits = finite_smoother_limits(
+        scenario.smoother, names,
+        purpose="the onboard link guard (its ramp-down brakes within these limits)")
     model = ArmCollisionModel(arm, scenario.workspace_or_default,
                               distance_horizon_m=scenario.collision_checker.distance_horizon_m)
     check = PreSimulatorPoseCheck(model, safety_margin_m=scenario.collision_checker.safety_margin_m,

@@ -302,6 +302,24 @@ class CollisionStopPlanner:
                                  braking_distance=distance)
 
 
+def finite_smoother_limits(smoother_config, joint_names, *, purpose: str) -> dict:
+    """{field: per-joint values} of the smoother's a_max and j_max, which must be finite.
+
+    Raises:
+        ValueError: naming the field, its value and ``purpose`` (what needs them finite).
+    """
+    names = tuple(joint_names)
+    limits = {}
+    for field in ("max_acceleration_rad_per_s2", "max_jerk_rad_per_s3"):
+        values = as_per_joint(field, getattr(smoother_config, field), len(names), names,
+                              allow_inf=True)
+        if not np.all(np.isfinite(values)):
+            raise ValueError(f"smoother.{field} = {getattr(smoother_config, field)!r} must be "
+                             f"finite for {purpose}")
+        limits[field] = values
+    return limits
+
+
 def MakeCollisionStopPlanner(*, period_s: float, smoother_config, arm, collision_model,
                              safety_margin_m: float, max_velocity=None) -> CollisionStopPlanner:
     """The planner of the ground station: the smoother's limits, the pre-simulator's check.
@@ -319,15 +337,9 @@ def MakeCollisionStopPlanner(*, period_s: float, smoother_config, arm, collision
         ValueError: An infinite a_max or j_max (the stop needs finite limits), naming the field.
     """
     names = tuple(arm.joint_names)
-    limits = {}
-    for field in ("max_acceleration_rad_per_s2", "max_jerk_rad_per_s3"):
-        values = as_per_joint(field, getattr(smoother_config, field), len(names), names,
-                              allow_inf=True)
-        if not np.all(np.isfinite(values)):
-            raise ValueError(
-                f"smoother.{field} = {getattr(smoother_config, field)!r} must be finite for "
-                "fifo.on_collision = 'stop' (the stop brakes within these limits)")
-        limits[field] = values
+    limits = finite_smoother_limits(smoother_config, names,
+                                    purpose="fifo.on_collision = 'stop' (the stop brakes "
+                                            "within these limits)")
     check = PreSimulatorPoseCheck(collision_model, safety_margin_m=safety_margin_m,
                                   lower_rad=arm.joint_lower_rad, upper_rad=arm.joint_upper_rad)
     return CollisionStopPlanner(
