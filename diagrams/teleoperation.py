@@ -279,18 +279,23 @@ def AddJointCommandSender(builder: DiagramBuilder, ground: GroundHandles, scenar
     return sender
 
 
-def MakeLinkGuard(scenario: Scenario, *, initial_position_rad) -> LinkGuard:
+def MakeLinkGuard(scenario: Scenario, *, initial_position_rad,
+                  collision_model=None) -> LinkGuard:
     """The onboard link guard: the smoother's limits (the robot's), the joint limits and the
     workspace's collision model (a ramp-down never commands a pose the pre-simulator would
-    reject)."""
-    from telesmooth.arms.collision import ArmCollisionModel
+    reject). ``collision_model``: an existing ``ArmCollisionModel`` of the scenario's arm and
+    workspace to share (in process, the pre-simulator's); None builds one."""
     arm = scenario.arm_description
     names = tuple(arm.joint_names)
     limits = finite_smoother_limits(
         scenario.smoother, names,
         purpose="the onboard link guard (its ramp-down brakes within these limits)")
-    model = ArmCollisionModel(arm, scenario.workspace_or_default,
-                              distance_horizon_m=scenario.collision_checker.distance_horizon_m)
+    model = collision_model
+    if model is None:
+        from telesmooth.arms.collision import ArmCollisionModel
+        model = ArmCollisionModel(
+            arm, scenario.workspace_or_default,
+            distance_horizon_m=scenario.collision_checker.distance_horizon_m)
     check = PreSimulatorPoseCheck(model, safety_margin_m=scenario.collision_checker.safety_margin_m,
                                   lower_rad=arm.joint_lower_rad, upper_rad=arm.joint_upper_rad)
     return LinkGuard(scenario.link_guard, joint_names=names, lower_rad=arm.joint_lower_rad,
@@ -300,10 +305,12 @@ def MakeLinkGuard(scenario: Scenario, *, initial_position_rad) -> LinkGuard:
 
 
 def AddOnboardCommandPath(builder: DiagramBuilder, scenario: Scenario, *, packets,
-                          initial_position_rad, uplink_key: bytes | None = None):
+                          initial_position_rad, uplink_key: bytes | None = None,
+                          collision_model=None):
     """Adds the onboard receiver (every packet of ``packets`` examined: authentication,
-    order, validity) and the link guard; returns (receiver, guard). Connect
-    ``guard.get_q_commanded_output_port()`` to the robot."""
+    order, validity) and the link guard (:func:`MakeLinkGuard`, sharing ``collision_model``
+    if given); returns (receiver, guard). Connect ``guard.get_q_commanded_output_port()`` to
+    the robot."""
     arm = scenario.arm_description
     receiver = builder.AddNamedSystem("joint_command_receiver", JointCommandReceiver(
         scenario.command_receiver, joint_names=arm.joint_names,
@@ -311,7 +318,7 @@ def AddOnboardCommandPath(builder: DiagramBuilder, scenario: Scenario, *, packet
         initial_position_rad=initial_position_rad, uplink_key=uplink_key))
     builder.Connect(packets, receiver.get_packets_input_port())
     guard = builder.AddNamedSystem("link_guard", MakeLinkGuard(
-        scenario, initial_position_rad=initial_position_rad))
+        scenario, initial_position_rad=initial_position_rad, collision_model=collision_model))
     builder.Connect(receiver.get_q_commanded_output_port(), guard.get_q_accepted_input_port())
     builder.Connect(receiver.get_accepted_count_output_port(),
                     guard.get_accepted_count_input_port())
@@ -418,8 +425,11 @@ def MakeTeleoperationDiagram(scenario: Scenario, *, meshcat=None) -> Teleoperati
             scenario.link.faults, lcm_type=lcmt_teleop_joint_command))
         builder.Connect(sender.get_lcm_message_output_port(),
                         link.get_lcm_message_input_port())
+        # One process: the guard shares the pre-simulator's collision model (same arm and
+        # workspace) instead of building a second plant.
         receiver, guard = AddOnboardCommandPath(
-            builder, scenario, packets=link.get_packets_output_port(), initial_position_rad=q0)
+            builder, scenario, packets=link.get_packets_output_port(), initial_position_rad=q0,
+            collision_model=ground.collision_checker.collision_model)
         builder.Connect(guard.get_q_commanded_output_port(), robot.GetInputPort("q_commanded"))
         logs.update(add_link_loggers(builder, receiver, guard,
                                      scenario.command_receiver.poll_period_s))
@@ -537,7 +547,6 @@ def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm, initial_position_ra
     logs = add_onboard_loggers(builder, robot, tracker_period)
     logs.update(add_link_loggers(builder, receiver, guard,
                                  scenario.command_receiver.poll_period_s))
-    logs["q_commanded"] = logs["q_accepted"]
     logs["last_command_session"] = LogVectorOutput(
         receiver.get_last_command_session_output_port(), builder,
         scenario.command_receiver.poll_period_s)

@@ -45,6 +45,7 @@ __all__ = [
     "UplinkKeyError",
     "UplinkKeyPermissionWarning",
     "canonical_bytes",
+    "check_key",
     "compute_tag",
     "generate_key_file",
     "load_key",
@@ -87,11 +88,13 @@ class UplinkKeyPermissionWarning(UserWarning):
     """The key file can be read or written by users other than its owner."""
 
 
-def _check_key(key) -> bytes:
+def check_key(key, *, field: str = "key") -> bytes:
+    """``key`` as bytes, or :class:`UplinkKeyError` naming ``field`` (not bytes, or shorter
+    than :data:`MIN_KEY_BYTES`). Never prints the key."""
     if not isinstance(key, (bytes, bytearray)):
-        raise UplinkKeyError(f"key: must be bytes, got {type(key).__name__}")
+        raise UplinkKeyError(f"{field}: must be bytes, got {type(key).__name__}")
     if len(key) < MIN_KEY_BYTES:
-        raise UplinkKeyError(f"key: {len(key)} bytes, need at least {MIN_KEY_BYTES}")
+        raise UplinkKeyError(f"{field}: {len(key)} bytes, need at least {MIN_KEY_BYTES}")
     return bytes(key)
 
 
@@ -121,7 +124,7 @@ def compute_tag(msg, key: bytes) -> bytes:
     Raises:
         UplinkKeyError: ``key`` is not bytes or shorter than :data:`MIN_KEY_BYTES`.
     """
-    return hmac.new(_check_key(key), canonical_bytes(msg), hashlib.sha256).digest()
+    return hmac.new(check_key(key), canonical_bytes(msg), hashlib.sha256).digest()
 
 
 def sign(msg, key: bytes):
@@ -151,7 +154,7 @@ def verify_classified(msg, key: bytes) -> tuple[str | None, str | None]:
     Raises:
         UplinkKeyError: bad ``key`` (a configuration error, not a property of the message).
     """
-    key = _check_key(key)
+    key = check_key(key)
     size = msg.auth_tag_size
     if size == 0:
         return AUTH_UNSIGNED, "unsigned (auth_tag_size = 0)"

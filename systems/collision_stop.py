@@ -42,6 +42,7 @@ not checked reaches the plant, and when in doubt the robot holds.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -61,6 +62,10 @@ __all__ = [
     "CollisionStopPlanner",
     "MakeCollisionStopPlanner",
     "PreSimulatorPoseCheck",
+    "STOPPABLE_ROUNDING_TOLERANCE",
+    "finite_smoother_limits",
+    "nudge_into_stoppable_set",
+    "start_limiter_moving",
 ]
 
 STOP_OUTCOMES = (
@@ -150,8 +155,8 @@ class PreSimulatorPoseCheck:
         return not self._model.query(q).in_collision(self._margin)
 
 
-def _start_moving(limiter: OnlineHardLimiter, sent_history: np.ndarray,
-                  target: np.ndarray) -> None:
+def start_limiter_moving(limiter: OnlineHardLimiter, sent_history: np.ndarray,
+                         target: np.ndarray) -> None:
     """Puts ``limiter`` just after the sent commands ``sent_history`` (3, J), oldest first:
     nominal (p, v, a) = their FD values, target history r_{k−2} = r_{k−1} = ``target``.
 
@@ -166,6 +171,60 @@ def _start_moving(limiter: OnlineHardLimiter, sent_history: np.ndarray,
     limiter.set_state_vector(np.concatenate([
         h[2], velocity, acceleration, h[0], h[0], h[1], h[2], target, target,
         np.zeros_like(target), [0.0]]))
+
+
+STOPPABLE_ROUNDING_TOLERANCE = 1e-11
+"""How far (relative, in the gauge of the stoppable set) an FD state recomputed from sent
+floats may lie outside the set and still count as inside: see
+:func:`nudge_into_stoppable_set`."""
+
+
+def nudge_into_stoppable_set(history, stoppable_sets, dt_s: float, *,
+                             tolerance: float = STOPPABLE_ROUNDING_TOLERANCE) -> np.ndarray:
+    """The command history, moved by a few ulps where only rounding puts it outside S.
+
+    The stop planner accepts a history only if its FD state (v, a) lies in the stoppable set
+    S of every joint, checked exactly (gauge max_i g_i · (v, a) ≤ 1). A sequence made by an
+    :class:`~telesmooth.smoothing.online_hard.OnlineHardLimiter` that brakes or accelerates
+    at its limit keeps its *nominal* state on the boundary of S, and the FD state recomputed
+    from the sent floats then lies outside S by rounding (gauge up to ~3e-14 above 1 for
+    |p| ≲ 5 rad; about a quarter of such ticks). Planning a stop from it would fall back to
+    the hold although the motion is stoppable. For every joint whose gauge g satisfies
+    1 < g ≤ 1 + ``tolerance``, this returns the history with (v, a) scaled by
+    (1 − tolerance)/g:
+
+        p_{k−2}' = p_{k−1} − v' Δt,   p_{k−3}' = p_{k−1} − 2 v' Δt + a' Δt²
+
+    (p_{k−1}, the commanded pose, is unchanged). The change is ≲ 2·tolerance·(|v| Δt +
+    |a| Δt²) rad, so the FD values of the *actual* sequence followed by a stop planned from
+    the nudged history differ from the planned ones by ~1e-11 of the limits, far inside the
+    limiter's margin (1e-9). Joints inside S, or farther outside than ``tolerance`` (really
+    not stoppable), are returned bit for bit.
+
+    Args:
+        history: (3, J) rad, p_{k−3}, p_{k−2}, p_{k−1}, oldest first.
+        stoppable_sets: Per joint, the :class:`~telesmooth.smoothing.online_hard.StoppablePolygon`
+            the planner checks (``OnlineHardLimiter.stoppable_sets`` with the same limits and
+            margin).
+        dt_s: Δt, s.
+        tolerance: Largest relative excess treated as rounding.
+
+    Returns:
+        A (3, J) array (a copy).
+    """
+    h = np.array(history, dtype=float)
+    dt = float(dt_s)
+    velocity = (h[2] - h[1]) / dt
+    acceleration = (h[2] - 2.0 * h[1] + h[0]) / dt**2
+    for joint, stoppable in enumerate(stoppable_sets):
+        gauge = float(np.max(stoppable.facets[:, 0] * velocity[joint]
+                             + stoppable.facets[:, 1] * acceleration[joint]))
+        if 1.0 < gauge <= 1.0 + tolerance:
+            scale = (1.0 - tolerance) / gauge
+            v, a = velocity[joint] * scale, acceleration[joint] * scale
+            h[1, joint] = h[2, joint] - v * dt
+            h[0, joint] = h[2, joint] - 2.0 * v * dt + a * dt**2
+    return h
 
 
 class CollisionStopPlanner:
@@ -186,6 +245,11 @@ class CollisionStopPlanner:
             |p − q_hold| ≤ |d| on one side. The onboard link guard allows it: a joint that is
             just finishing an approach when the link goes silent otherwise forces a hold, i.e.
             a velocity step on every other joint.
+        rounding_tolerance: If > 0, a history whose FD state lies outside a joint's
+            stoppable set by at most this much (relative gauge; rounding of the sent floats)
+            is first moved inside (:func:`nudge_into_stoppable_set`) instead of refused as
+            ``"hold-not-stoppable"``. Default 0: the exact check (the collision stop); the
+            onboard link guard uses :data:`STOPPABLE_ROUNDING_TOLERANCE`.
 
     Raises:
         ValueError: Limits that are not finite and positive (naming the field, value and
@@ -194,7 +258,8 @@ class CollisionStopPlanner:
 
     def __init__(self, *, dt_s: float, max_acceleration, max_jerk, max_velocity=None,
                  pose_is_safe: Callable[[np.ndarray], bool], joint_names,
-                 margin: float = DEFAULT_MARGIN, allow_reverse: bool = False):
+                 margin: float = DEFAULT_MARGIN, allow_reverse: bool = False,
+                 rounding_tolerance: float = 0.0):
         if not callable(pose_is_safe):
             raise ValueError(f"pose_is_safe = {pose_is_safe!r} must be callable (q) -> bool")
         self._joint_names = tuple(str(name) for name in joint_names)
@@ -211,6 +276,9 @@ class CollisionStopPlanner:
         self._pose_is_safe = pose_is_safe
         self._margin = float(margin)
         self._allow_reverse = bool(allow_reverse)
+        if not (math.isfinite(rounding_tolerance) and 0.0 <= rounding_tolerance < 1e-6):
+            raise ValueError(f"rounding_tolerance = {rounding_tolerance!r} must be in [0, 1e-6)")
+        self._rounding_tolerance = float(rounding_tolerance)
         self.max_acceleration = probe.max_acceleration
         self.max_jerk = probe.max_jerk
         self.max_velocity = probe.max_velocity
@@ -267,6 +335,9 @@ class CollisionStopPlanner:
         history = self._check_history(sent_history)
         q_hold = history[2].copy()
         limiter = OnlineHardLimiter(q_start=q_hold, **self._limiter_arguments)
+        if self._rounding_tolerance > 0.0:
+            history = nudge_into_stoppable_set(history, limiter.stoppable_sets, self._dt,
+                                               tolerance=self._rounding_tolerance)
         velocity, acceleration = self.fd_state(history)
         # Strictly inside S of the (shrunk) internal limits: then the limiter's nominal state
         # is the sent FD state and no projection moves it.
@@ -277,7 +348,7 @@ class CollisionStopPlanner:
         shrink = 1.0 - self._margin
         target = stop_position(q_hold, velocity, acceleration, self.max_acceleration * shrink,
                                self.max_jerk * shrink)
-        _start_moving(limiter, history, target)
+        start_limiter_moving(limiter, history, target)
         sent = [row for row in history]
         commands = []
         while not (np.array_equal(sent[-1], sent[-2]) and np.array_equal(sent[-2], sent[-3])

@@ -32,6 +32,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
 from telesmooth.lcm_types import lcmt_teleop_joint_command
+from telesmooth.link.auth import check_key, verify
 from telesmooth.systems.timing import check_period
 
 __all__ = [
@@ -116,7 +117,6 @@ def classify_joint_command(msg, *, last_accepted, joint_names, lower_rad, upper_
     if msg.seq < 0:
         return "ignored", f"seq = {msg.seq}: the sender has not formed a packet yet"
     if key is not None:
-        from telesmooth.link.auth import verify
         problem = verify(msg, key)
         if problem is not None:
             return "auth", problem
@@ -245,9 +245,7 @@ class JointCommandReceiver(LeafSystem):
                 raise ValueError(
                     "uplink_key = None but command_receiver.authentication = 'required': "
                     "load the shared key (telesmooth.link.auth.load_key)")
-            from telesmooth.link.auth import MIN_KEY_BYTES
-            if not isinstance(uplink_key, bytes) or len(uplink_key) < MIN_KEY_BYTES:
-                raise ValueError(f"uplink_key must be at least {MIN_KEY_BYTES} bytes")
+            uplink_key = check_key(uplink_key, field="uplink_key")
         self._key = uplink_key if config.authentication == "required" else None
         self._config = config
         self._message_input = self.DeclareAbstractInputPort(

@@ -7,6 +7,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
 from telesmooth.lcm_types import lcmt_teleop_joint_command
+from telesmooth.link.auth import check_key, sign
 
 __all__ = ["JointCommandSender"]
 
@@ -56,11 +57,7 @@ class JointCommandSender(LeafSystem):
                 not 0 <= session_id < 2**63:
             raise ValueError(f"session_id = {session_id!r} must be an integer in [0, 2^63)")
         self._session_id = int(session_id)
-        self._key = uplink_key
-        if uplink_key is not None:
-            from telesmooth.link.auth import MIN_KEY_BYTES
-            if not isinstance(uplink_key, bytes) or len(uplink_key) < MIN_KEY_BYTES:
-                raise ValueError(f"uplink_key must be at least {MIN_KEY_BYTES} bytes")
+        self._key = None if uplink_key is None else check_key(uplink_key, field="uplink_key")
         self._joint_names = tuple(str(n) for n in joint_names)
         n = len(self._joint_names)
         if n == 0:
@@ -113,6 +110,5 @@ class JointCommandSender(LeafSystem):
             lcmt_teleop_joint_command.MODE_TRACK
         msg.session_id = self._session_id
         if self._key is not None and msg.seq >= 0:
-            from telesmooth.link.auth import sign
             msg = sign(msg, self._key)
         output.set_value(msg)

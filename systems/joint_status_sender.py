@@ -6,6 +6,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
 from telesmooth.lcm_types import lcmt_onboard_joint_status
+from telesmooth.systems.joint_command_receiver import REJECTION_CLASSES
 
 __all__ = ["JointStatusSender"]
 
@@ -58,7 +59,7 @@ class JointStatusSender(LeafSystem):
         self._commanded_input = self.DeclareVectorInputPort("q_commanded", self._n)
         self._guard_mode_input = self.DeclareVectorInputPort("guard_mode", 1)
         self._accepted_input = self.DeclareVectorInputPort("accepted_count", 1)
-        self._counts_input = self.DeclareVectorInputPort("rejection_counts", 5)
+        self._counts_input = self.DeclareVectorInputPort("rejection_counts", len(REJECTION_CLASSES))
         self._message_output = self.DeclareAbstractOutputPort(
             "lcm_message", lambda: AbstractValue.Make(lcmt_onboard_joint_status()),
             self._calc_lcm_message)
@@ -122,7 +123,7 @@ class JointStatusSender(LeafSystem):
         msg.guard_mode = int(round(self._optional(self._guard_mode_input, context, 0.0)))
         msg.accepted_count = int(round(self._optional(self._accepted_input, context, 0.0)))
         counts = (self._counts_input.Eval(context) if self._counts_input.HasValue(context)
-                  else [0.0] * 5)
+                  else [0.0] * len(REJECTION_CLASSES))
         (msg.rejected_invalid_count, msg.rejected_auth_count, msg.dropped_duplicate_count,
          msg.dropped_stale_count, msg.undecodable_count) = (int(round(c)) for c in counts)
         output.set_value(msg)

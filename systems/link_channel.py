@@ -12,12 +12,13 @@ the ``telesmooth link-relay`` process between two real processes.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from telesmooth.link.faults import LinkFaultConfig, LinkFaultModel
+from telesmooth.link.faults import LinkFaultConfig, LinkQueue
 from telesmooth.systems.lcm_safe_subscriber import RECENT_PACKETS
 from telesmooth.systems.timing import check_period
 
@@ -32,10 +33,9 @@ class _LinkState:
     """Everything in flight (replaced as a whole; lives in an abstract state)."""
 
     last_key: tuple | None = None     # (session_id, seq) of the last packet taken from input
-    sent: int = 0                     # packets taken from the input (packet index = sent − 1)
-    in_flight: tuple = ()             # (delivery time, packet index, copy, bytes), sorted
+    queue: LinkQueue | None = None    # in flight; copied before any change (Context value)
     delivered: tuple = ()             # the last RECENT_PACKETS deliveries, (number, bytes)
-    counts: tuple = (0, 0, 0, 0, 0)   # LINK_COUNTS
+    delivered_count: int = 0
 
 
 class LinkChannel(LeafSystem):
@@ -60,9 +60,10 @@ class LinkChannel(LeafSystem):
     - ``link_counts``: (5,) packets sent, deliveries made, packets lost, duplicated and held
       back (:data:`LINK_COUNTS`).
 
-    Every ``poll_period_s``: take a new packet from the input (encode it; its delivery times
-    are ``LinkFaultModel.fate(index, now)``), then deliver every copy whose time has come, in
-    delivery-time order. Delivery times are therefore quantised to the poll period.
+    Every ``poll_period_s``: take a new packet from the input (encode it and put it on a
+    :class:`~telesmooth.link.faults.LinkQueue`, whose model decides its delivery times from
+    (seed, packet index)), then deliver every copy whose time has come, in delivery-time
+    order. Delivery times are therefore quantised to the poll period.
     """
 
     def __init__(self, config: LinkFaultConfig = LinkFaultConfig(), *, lcm_type,
@@ -71,21 +72,23 @@ class LinkChannel(LeafSystem):
         if not isinstance(config, LinkFaultConfig):
             raise ValueError(f"config = {config!r} must be a LinkFaultConfig")
         check_period("LinkChannel.poll_period_s", poll_period_s)
-        self._model = LinkFaultModel(config)
+        self._config = config
         self._message_input = self.DeclareAbstractInputPort(
             "lcm_message", AbstractValue.Make(lcm_type()))
-        self._state = self.DeclareAbstractState(AbstractValue.Make(_LinkState()))
+        self._state = self.DeclareAbstractState(AbstractValue.Make(
+            _LinkState(queue=LinkQueue(config))))
         self.DeclarePeriodicUnrestrictedUpdateEvent(poll_period_s, 0.0, self._poll)
         self._packets_output = self.DeclareAbstractOutputPort(
             "packets", lambda: AbstractValue.Make(()),
             lambda c, o: o.set_value(self._link(c).delivered), {self.all_state_ticket()})
         self._counts_output = self.DeclareVectorOutputPort(
             "link_counts", len(LINK_COUNTS),
-            lambda c, o: o.SetFromVector(self._link(c).counts), {self.all_state_ticket()})
+            lambda c, o: o.SetFromVector([self.counts(c)[name] for name in LINK_COUNTS]),
+            {self.all_state_ticket()})
 
     @property
     def config(self) -> LinkFaultConfig:
-        return self._model.config
+        return self._config
 
     def get_lcm_message_input_port(self):
         return self._message_input
@@ -98,7 +101,11 @@ class LinkChannel(LeafSystem):
 
     def counts(self, context) -> dict:
         """{name: count} of :data:`LINK_COUNTS` in ``context``."""
-        return dict(zip(LINK_COUNTS, self._link(context).counts))
+        link = self._link(context)
+        model = link.queue.counts()
+        return {"sent": model["sent"], "delivered": link.delivered_count,
+                "lost": model["lost"], "duplicated": model["duplicated"],
+                "held_back": model["reordered"]}
 
     def _link(self, context) -> _LinkState:
         return context.get_abstract_state(self._state).get_value()
@@ -106,30 +113,21 @@ class LinkChannel(LeafSystem):
     def _poll(self, context, state):
         link = self._link(context)
         now = context.get_time()
-        sent, in_flight, counts = link.sent, list(link.in_flight), list(link.counts)
-        last_key = link.last_key
         msg = self._message_input.Eval(context)
         key = (int(msg.session_id), int(msg.seq))
-        if msg.seq >= 0 and key != last_key:
-            last_key = key
-            fate = self._model.fate(sent, now)
-            payload = msg.encode()
-            in_flight.extend((t, sent, copy, payload)
-                             for copy, t in enumerate(fate.delivery_times_s))
-            in_flight.sort(key=lambda item: item[:3])
-            counts[0] += 1
-            counts[2] += int(fate.lost)
-            counts[3] += int(fate.duplicated)
-            counts[4] += int(fate.held_back)
-            sent += 1
-        due = [item for item in in_flight if item[0] <= now]
-        if not due and (sent, last_key) == (link.sent, link.last_key):
+        new_packet = msg.seq >= 0 and key != link.last_key
+        next_time = link.queue.next_delivery_time()
+        if not new_packet and (next_time is None or next_time > now):
             return EventStatus.DidNothing()
-        delivered = link.delivered
-        number = delivered[-1][0] if delivered else 0
-        new = tuple((number + k + 1, item[3]) for k, item in enumerate(due))
-        counts[1] += len(due)
+        # The queue in the Context is never mutated: change a copy, store the copy.
+        queue = copy.deepcopy(link.queue)
+        if new_packet:
+            queue.send(queue.counts()["sent"], now, msg.encode())
+        due = queue.due(now)
+        number = link.delivered[-1][0] if link.delivered else 0
+        new = tuple((number + k + 1, payload) for k, payload in enumerate(due))
         state.get_mutable_abstract_state(self._state).set_value(_LinkState(
-            last_key=last_key, sent=sent, in_flight=tuple(in_flight[len(due):]),
-            delivered=(delivered + new)[-RECENT_PACKETS:], counts=tuple(counts)))
+            last_key=key if new_packet else link.last_key, queue=queue,
+            delivered=(link.delivered + new)[-RECENT_PACKETS:],
+            delivered_count=link.delivered_count + len(due)))
         return EventStatus.Succeeded()

@@ -28,8 +28,11 @@ from telesmooth.smoothing.validation import _joint_label, as_per_joint
 from telesmooth.systems.collision_stop import (
     SENT_HISTORY_LENGTH,
     STOP_OUTCOMES,
+    STOPPABLE_ROUNDING_TOLERANCE,
     CollisionStopPlan,
     CollisionStopPlanner,
+    nudge_into_stoppable_set,
+    start_limiter_moving,
 )
 
 __all__ = [
@@ -57,11 +60,6 @@ MODE_RESUMING = 3
 
 GUARD_MODES = ("track", "stopping", "held", "resuming")
 """Mode names; the ``guard_mode`` output carries the index in this tuple."""
-
-STOPPABLE_ROUNDING_TOLERANCE = 1e-11
-"""How far (relative, in the gauge of the stoppable set) an FD state recomputed from sent
-floats may lie outside the set and still count as inside: see
-:func:`nudge_into_stoppable_set`."""
 
 _COMMAND_HISTORY_LENGTH = SENT_HISTORY_LENGTH  # p_{k−3}, p_{k−2}, p_{k−1}
 # Layout of the bookkeeping state vector.
@@ -173,69 +171,6 @@ def fd_limits_ratio(commands, period_s: float, max_acceleration, max_jerk,
                          worst(3, max_jerk))
 
 
-def nudge_into_stoppable_set(history, stoppable_sets, dt_s: float, *,
-                             tolerance: float = STOPPABLE_ROUNDING_TOLERANCE) -> np.ndarray:
-    """The command history, moved by a few ulps where only rounding puts it outside S.
-
-    The stop planner accepts a history only if its FD state (v, a) lies in the stoppable set
-    S of every joint, checked exactly (gauge max_i g_i · (v, a) ≤ 1). A sequence made by an
-    :class:`~telesmooth.smoothing.online_hard.OnlineHardLimiter` that brakes or accelerates
-    at its limit keeps its *nominal* state on the boundary of S, and the FD state recomputed
-    from the sent floats then lies outside S by rounding (gauge up to ~3e-14 above 1 for
-    |p| ≲ 5 rad; about a quarter of such ticks). Planning a stop from it would fall back to
-    the hold although the motion is stoppable. For every joint whose gauge g satisfies
-    1 < g ≤ 1 + ``tolerance``, this returns the history with (v, a) scaled by
-    (1 − tolerance)/g:
-
-        p_{k−2}' = p_{k−1} − v' Δt,   p_{k−3}' = p_{k−1} − 2 v' Δt + a' Δt²
-
-    (p_{k−1}, the commanded pose, is unchanged). The change is ≲ 2·tolerance·(|v| Δt +
-    |a| Δt²) rad, so the FD values of the *actual* sequence followed by a stop planned from
-    the nudged history differ from the planned ones by ~1e-11 of the limits, far inside the
-    limiter's margin (1e-9). Joints inside S, or farther outside than ``tolerance`` (really
-    not stoppable), are returned bit for bit.
-
-    Args:
-        history: (3, J) rad, p_{k−3}, p_{k−2}, p_{k−1}, oldest first.
-        stoppable_sets: Per joint, the :class:`~telesmooth.smoothing.online_hard.StoppablePolygon`
-            the planner checks (``OnlineHardLimiter.stoppable_sets`` with the same limits and
-            margin).
-        dt_s: Δt, s.
-        tolerance: Largest relative excess treated as rounding.
-
-    Returns:
-        A (3, J) array (a copy).
-    """
-    h = np.array(history, dtype=float)
-    dt = float(dt_s)
-    velocity = (h[2] - h[1]) / dt
-    acceleration = (h[2] - 2.0 * h[1] + h[0]) / dt**2
-    for joint, stoppable in enumerate(stoppable_sets):
-        gauge = float(np.max(stoppable.facets[:, 0] * velocity[joint]
-                             + stoppable.facets[:, 1] * acceleration[joint]))
-        if 1.0 < gauge <= 1.0 + tolerance:
-            scale = (1.0 - tolerance) / gauge
-            v, a = velocity[joint] * scale, acceleration[joint] * scale
-            h[1, joint] = h[2, joint] - v * dt
-            h[0, joint] = h[2, joint] - 2.0 * v * dt + a * dt**2
-    return h
-
-
-def _start_moving(limiter: OnlineHardLimiter, command_history: np.ndarray,
-                  target: np.ndarray) -> None:
-    """Puts ``limiter`` just after the commands ``command_history`` (3, J), oldest first:
-    nominal (p, v, a) = their FD values, target history r_{k−2} = r_{k−1} = ``target`` (the
-    public equivalent of ``collision_stop._start_moving``; the limiter's state vector is
-    [p, v, a, p_{k−3} … p_k, r_{k−2}, r_{k−1}, held, ticks])."""
-    dt = limiter.dt_s
-    h = np.asarray(command_history, dtype=float)
-    velocity = (h[2] - h[1]) / dt
-    acceleration = (h[2] - 2.0 * h[1] + h[0]) / dt**2
-    limiter.set_state_vector(np.concatenate([
-        h[2], velocity, acceleration, h[0], h[0], h[1], h[2], target, target,
-        np.zeros_like(target), [0.0]]))
-
-
 @dataclasses.dataclass
 class _GuardState:
     """The guard's Context state, unpacked for one poll (see LinkGuard's docstring)."""
@@ -329,9 +264,10 @@ class LinkGuard(LeafSystem):
     - TRACK: a pending packet is commanded unchanged, p_k = r, at once. Else, if
       i − i_pkt ≥ T: a stop is planned (below).
     - Planning a stop: plan = CollisionStopPlanner(Δt = period_s, the limits,
-      ``pose_is_safe``).plan([p_{k−3}, p_{k−2}, p_{k−1}], max_ticks = max_stop_ticks)
-      (after :func:`nudge_into_stoppable_set`, which changes nothing for a history strictly
-      inside the stoppable set). ``stop_outcome`` and ``braking_distance`` report it. If
+      ``pose_is_safe``, allow_reverse = True, rounding_tolerance =
+      STOPPABLE_ROUNDING_TOLERANCE).plan([p_{k−3}, p_{k−2}, p_{k−1}], max_ticks =
+      max_stop_ticks); the planner first applies :func:`nudge_into_stoppable_set`, which
+      changes nothing for a history strictly inside the stoppable set. ``stop_outcome`` and ``braking_distance`` report it. If
       ``plan.is_stop``: STOPPING, and plan.commands[0], [1], … are issued one per guard tick
       (the first at once when i − i_cmd ≥ P, as after a timeout ≥ period_s); after the last
       one (the rest pose; with the history, the last three commands are equal) → HELD.
@@ -451,10 +387,9 @@ class LinkGuard(LeafSystem):
                                           **limits)
         # Reversing joints are allowed: every braking pose is still checked, and a hold
         # would step every other joint's velocity to zero (collision_stop docstring).
-        self._planner = CollisionStopPlanner(pose_is_safe=self.pose_is_safe,
-                                             margin=DEFAULT_MARGIN, allow_reverse=True,
-                                             **limits)
-        self._stoppable_sets = self._limiter.stoppable_sets
+        self._planner = CollisionStopPlanner(
+            pose_is_safe=self.pose_is_safe, margin=DEFAULT_MARGIN, allow_reverse=True,
+            rounding_tolerance=STOPPABLE_ROUNDING_TOLERANCE, **limits)
 
         self._q_accepted_input = self.DeclareVectorInputPort("q_accepted", n)
         self._accepted_count_input = self.DeclareVectorInputPort("accepted_count", 1)
@@ -663,10 +598,9 @@ class LinkGuard(LeafSystem):
 
     def plan_stop(self, command_history) -> CollisionStopPlan:
         """The stop the guard plans from the last three commanded poses (3, J), oldest first:
-        the planner on :func:`nudge_into_stoppable_set` of the history."""
-        history = nudge_into_stoppable_set(command_history, self._stoppable_sets,
-                                           self._config.period_s)
-        return self._planner.plan(history, max_ticks=self._config.max_stop_ticks)
+        the planner, which first nudges a history that only rounding puts outside the
+        stoppable set (its ``rounding_tolerance``, :func:`nudge_into_stoppable_set`)."""
+        return self._planner.plan(command_history, max_ticks=self._config.max_stop_ticks)
 
     def _start_stop(self, s: _GuardState) -> None:
         plan = self.plan_stop(s.history)
@@ -698,7 +632,7 @@ class LinkGuard(LeafSystem):
         if s.mode == MODE_HELD:
             limiter.reset(s.q)
         elif s.mode == MODE_STOPPING:
-            _start_moving(limiter, s.history, q_accepted)
+            start_limiter_moving(limiter, s.history, q_accepted)
         else:
             limiter.set_state_vector(s.limiter)
         command = limiter.step(q_accepted)

@@ -15,6 +15,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
 from telesmooth.lcm_types import lcmt_onboard_joint_status
+from telesmooth.systems.joint_command_receiver import REJECTION_CLASSES
 from telesmooth.systems.timing import check_period
 
 __all__ = ["LINK_STATUSES", "LinkMonitor", "LinkMonitorConfig", "ONBOARD_COUNTS",
@@ -23,7 +24,7 @@ __all__ = ["LINK_STATUSES", "LinkMonitor", "LinkMonitorConfig", "ONBOARD_COUNTS"
 LINK_STATUSES = ("no-telemetry", "ok", "degraded", "lost")
 """``link_status`` values, by index."""
 
-ONBOARD_COUNTS = ("accepted", "invalid", "auth", "duplicate", "stale", "undecodable")
+ONBOARD_COUNTS = ("accepted",) + REJECTION_CLASSES
 """The ``onboard_counts`` output, in this order (the telemetry's counters)."""
 
 
@@ -113,6 +114,7 @@ class LinkMonitor(LeafSystem):
         initial[1], initial[4] = -1.0, -1.0
         self._state = self.DeclareDiscreteState(initial)
         self.DeclarePeriodicDiscreteUpdateEvent(config.poll_period_s, 0.0, self._update)
+        self.DeclareForcedDiscreteUpdateEvent(self._update)
 
         def scalar(index):
             return lambda c, o: o.SetAtIndex(0, self._values(c)[index])
@@ -155,13 +157,8 @@ class LinkMonitor(LeafSystem):
             acked = msg.last_command_seq if msg.last_command_session_id == self._session_id \
                 else -1
             values[3] = max(0.0, sent - acked)
-        elif values[1] >= 0:
-            values[3] = max(values[3], 0.0)
         age = None if values[1] < 0 else now - values[1]
-        previous_status = values[0]
         values[0] = link_status(
             telemetry_age_s=age, unacknowledged=int(values[3]), guard_mode=int(values[4]),
-            rejected_recently=rejected_recently or (previous_status == 2 and count == values[2]
-                                                    and values[4] != 0),
-            config=self._config)
+            rejected_recently=rejected_recently, config=self._config)
         discrete_state.get_mutable_vector(self._state).SetFromVector(values)

@@ -339,3 +339,34 @@ def test_stop_only_ports_exist_only_with_the_stop_policy():
     names = [stop.get_output_port(i).get_name() for i in range(stop.num_output_ports())]
     assert names[-2:] == ["braking_distance", "stop_status"]
     assert stop.get_stop_status_output_port().size() == 1
+
+
+def test_rounding_tolerance_plans_from_the_nudged_history_and_is_validated():
+    from telesmooth.smoothing.online_hard import OnlineHardLimiter
+    from telesmooth.systems.collision_stop import (
+        STOPPABLE_ROUNDING_TOLERANCE,
+        nudge_into_stoppable_set,
+    )
+    exact = make_planner()
+    tolerant = CollisionStopPlanner(dt_s=DT, max_acceleration=A_MAX, max_jerk=J_MAX,
+                                    pose_is_safe=always_safe, joint_names=JOINTS,
+                                    rounding_tolerance=STOPPABLE_ROUNDING_TOLERANCE)
+    limiter = OnlineHardLimiter(dt_s=DT, max_acceleration=A_MAX, max_jerk=J_MAX,
+                                q_start=[0.0, 0.0])
+    sets = limiter.stoppable_sets
+    sent, rescued = [np.zeros(2)] * 3, 0
+    for tick in range(120):   # a limiter at its limits: FD states on the boundary of S
+        sent.append(limiter.step([2.0, -2.0] if (tick // 20) % 2 == 0 else [-2.0, 2.0]))
+        history = np.array(sent[-3:])
+        plan = tolerant.plan(history, max_ticks=400)
+        oracle = exact.plan(nudge_into_stoppable_set(history, sets, DT), max_ticks=400)
+        assert plan.outcome == oracle.outcome
+        np.testing.assert_array_equal(plan.commands, oracle.commands)
+        rescued += exact.plan(history, max_ticks=400).outcome == "hold-not-stoppable" and \
+            plan.is_stop
+    assert rescued > 0
+    for bad in (-1e-12, 1e-3, float("nan")):
+        with pytest.raises(ValueError, match="rounding_tolerance"):
+            CollisionStopPlanner(dt_s=DT, max_acceleration=A_MAX, max_jerk=J_MAX,
+                                 pose_is_safe=always_safe, joint_names=JOINTS,
+                                 rounding_tolerance=bad)

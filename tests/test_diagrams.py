@@ -97,7 +97,7 @@ def test_lcm_split_sends_the_same_commands_as_the_single_process(tmp_path):
     split.AdvanceTo(duration)
     context = split.get_context()
     received_seq = onboard.logs["last_command_seq"].FindLog(context).data()[0]
-    commanded = onboard.logs["q_commanded"].FindLog(context).data().T
+    commanded = onboard.logs["q_accepted"].FindLog(context).data().T
     n = 3
     checked = 0
     for k, state in zip(seq, states):

@@ -191,3 +191,17 @@ def test_status_and_collision_messages_carry_their_inputs():
     assert isinstance(msg, lcmt_teleop_collision_event)
     assert (msg.utime, msg.seq, msg.collision_detected, msg.holding) == (1_250_000, 5, True, True)
     assert msg.min_distance_m == -0.004
+
+
+def test_uplink_key_errors_name_the_field():
+    required = JointCommandReceiverConfig(authentication="required")
+    with pytest.raises(ValueError, match="uplink_key = None but .*authentication = 'required'"):
+        JointCommandReceiver(required, joint_names=JOINTS, lower_rad=LOWER, upper_rad=UPPER,
+                             initial_position_rad=[0.0, 0.0])
+    with pytest.raises(ValueError, match="uplink_key: 5 bytes, need at least 16"):
+        JointCommandReceiver(required, joint_names=JOINTS, lower_rad=LOWER, upper_rad=UPPER,
+                             initial_position_rad=[0.0, 0.0], uplink_key=b"short")
+    with pytest.raises(ValueError, match="uplink_key: must be bytes, got str"):
+        JointCommandSender(joint_names=JOINTS, delay_s=0.75, uplink_key="0" * 32)
+    with pytest.raises(ValueError, match="authentication = 'maybe'"):
+        JointCommandReceiverConfig(authentication="maybe")

@@ -159,7 +159,6 @@ def fault_run(tmp_path_factory):
         time.sleep(1.0)
         ground.send_signal(signal.SIGKILL)          # the ground process dies mid-run
         ground.wait(timeout=30)
-        killed_at = time.monotonic()
         time.sleep(4.0)                             # onboard: ramp down, hold
         ground2 = start(telesmooth + ["ground", "--lcm-url", url_a, "--duration", "5",
                                       "--resume-wait", "5"] + common, "ground2")
@@ -174,7 +173,6 @@ def fault_run(tmp_path_factory):
         for process in processes:
             if process.poll() is None:
                 process.kill()
-    assert time.monotonic() - killed_at > 4.0
     return dict(out=out, key=key, attacks=attacks, sent_on_a=sent_on_a,
                 restart_log=restart_log, names=names, scenario=scenario)
 
@@ -227,8 +225,8 @@ def test_the_robot_ramped_down_after_the_kill_and_the_restart_continued_from_it(
     # What the guard generated between the two ground runs stays within the limits.
     gap = guard[(guard[:, 1] > accepted[first_of_second - 1, 3] - 1.0) &
                 (guard[:, 1] < t_restart)][:, 3:]
-    if len(gap) >= 4:
-        ratio = fd_limits_ratio(gap, scenario.uplink.period_s,
-                                scenario.smoother.max_acceleration_rad_per_s2,
-                                scenario.smoother.max_jerk_rad_per_s3)
-        assert ratio.acceleration <= 1 + 1e-6 and ratio.jerk <= 1 + 1e-6, ratio
+    assert len(gap) >= 4, gap       # the ramp-down itself is there to check
+    ratio = fd_limits_ratio(gap, scenario.uplink.period_s,
+                            scenario.smoother.max_acceleration_rad_per_s2,
+                            scenario.smoother.max_jerk_rad_per_s3)
+    assert ratio.acceleration <= 1 + 1e-6 and ratio.jerk <= 1 + 1e-6, ratio

@@ -1,0 +1,88 @@
+"""Ground-side link status from the onboard telemetry (LinkMonitor, link_status)."""
+
+import numpy as np
+import pytest
+
+from telesmooth.lcm_types import lcmt_onboard_joint_status
+from telesmooth.systems.link_monitor import (
+    LINK_STATUSES,
+    ONBOARD_COUNTS,
+    LinkMonitor,
+    LinkMonitorConfig,
+    link_status,
+)
+
+CONFIG = LinkMonitorConfig(poll_period_s=0.05, telemetry_timeout_s=1.0, max_unacknowledged=4)
+
+
+@pytest.mark.parametrize("age, unacked, mode, rejected, expected", [
+    (None, 0, 0, False, "no-telemetry"),
+    (0.1, 0, 0, False, "ok"),
+    (0.1, 4, 0, False, "ok"),
+    (0.1, 5, 0, False, "degraded"),
+    (0.1, 0, 1, False, "degraded"),
+    (0.1, 0, 0, True, "degraded"),
+    (1.01, 0, 0, False, "lost"),
+    (1.01, 9, 2, True, "lost"),
+])
+def test_link_status_table(age, unacked, mode, rejected, expected):
+    assert LINK_STATUSES[link_status(telemetry_age_s=age, unacknowledged=unacked,
+                                     guard_mode=mode, rejected_recently=rejected,
+                                     config=CONFIG)] == expected
+
+
+def _telemetry(session, last_seq, *, mode=0, invalid=0, accepted=0):
+    msg = lcmt_onboard_joint_status()
+    msg.last_command_session_id, msg.last_command_seq = session, last_seq
+    msg.guard_mode, msg.rejected_invalid_count, msg.accepted_count = mode, invalid, accepted
+    return msg
+
+
+def test_monitor_follows_the_telemetry():
+    dut = LinkMonitor(CONFIG, session_id=7)
+    context = dut.CreateDefaultContext()
+    outputs = {name: dut.GetOutputPort(name) for name in
+               ("link_status", "telemetry_age", "unacknowledged", "onboard_guard_mode",
+                "onboard_counts")}
+
+    def poll(t, msg=None, count=None, sent=-1):
+        context.SetTime(t)
+        if msg is not None:
+            dut.GetInputPort("telemetry").FixValue(context, msg)
+        if count is not None:
+            dut.GetInputPort("telemetry_count").FixValue(context, [count])
+        dut.GetInputPort("sequence_number").FixValue(context, [sent])
+        dut.CalcForcedDiscreteVariableUpdate(context, context.get_mutable_discrete_state())
+        return {name: port.Eval(context).copy() for name, port in outputs.items()}
+
+    out = poll(0.0, _telemetry(0, -1), 0)
+    assert LINK_STATUSES[int(out["link_status"][0])] == "no-telemetry"
+    assert out["telemetry_age"][0] == -1.0
+    out = poll(1.0, _telemetry(7, 10, accepted=11), 1, sent=12)
+    assert LINK_STATUSES[int(out["link_status"][0])] == "ok"
+    assert out["unacknowledged"][0] == 2
+    np.testing.assert_array_equal(out["onboard_counts"], [11, 0, 0, 0, 0, 0])
+    assert len(ONBOARD_COUNTS) == 6
+    # The robot's last command is from another (older) session: everything is unacknowledged.
+    out = poll(1.1, _telemetry(6, 40), 2, sent=12)
+    assert out["unacknowledged"][0] == 13
+    assert LINK_STATUSES[int(out["link_status"][0])] == "degraded"
+    # A new rejection (or a guard that is not tracking) degrades the link.
+    out = poll(1.2, _telemetry(7, 12, invalid=1), 3, sent=12)
+    assert LINK_STATUSES[int(out["link_status"][0])] == "degraded"
+    out = poll(1.3, _telemetry(7, 12, invalid=1), 4, sent=12)
+    assert LINK_STATUSES[int(out["link_status"][0])] == "ok"
+    out = poll(1.4, _telemetry(7, 12, mode=1, invalid=1), 5, sent=12)
+    assert LINK_STATUSES[int(out["link_status"][0])] == "degraded"
+    assert out["onboard_guard_mode"][0] == 1
+    # No telemetry for longer than the timeout: lost.
+    out = poll(2.5, sent=16)
+    assert LINK_STATUSES[int(out["link_status"][0])] == "lost"
+    assert out["telemetry_age"][0] == pytest.approx(1.1)
+
+
+def test_config_errors_name_the_field():
+    with pytest.raises(ValueError, match="max_unacknowledged = -1"):
+        LinkMonitorConfig(max_unacknowledged=-1)
+    with pytest.raises(ValueError, match="telemetry_timeout_s"):
+        LinkMonitorConfig(telemetry_timeout_s=0.0)
