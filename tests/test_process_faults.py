@@ -218,15 +218,19 @@ def test_the_robot_ramped_down_after_the_kill_and_the_restart_continued_from_it(
                     (guard[:, 1] < t_restart)]
     modes = set(between[:, 2].astype(int))
     assert MODE_STOPPING in modes or MODE_HELD in modes, modes
-    # The restarted ground's first command is the robot's commanded pose (from telemetry).
-    before = guard[guard[:, 1] <= t_restart - 1e-9][-1, 3:]
-    np.testing.assert_array_equal(accepted[first_of_second, 4:], before)
+    # The restarted ground's first command is a pose the robot was commanded to after the
+    # kill (the one its telemetry reported when the new ground started; the ramp-down may
+    # still be going on then, so later commands of it can follow before the packet lands).
+    issued = guard[(guard[:, 1] > accepted[first_of_second - 1, 3]) &
+                   (guard[:, 1] <= t_restart)][:, 3:]
+    assert any(np.array_equal(accepted[first_of_second, 4:], row) for row in issued)
     assert "resuming from the robot's commanded pose" in fault_run["restart_log"]
-    # What the guard generated between the two ground runs stays within the limits.
-    gap = guard[(guard[:, 1] > accepted[first_of_second - 1, 3] - 1.0) &
-                (guard[:, 1] < t_restart)][:, 3:]
-    assert len(gap) >= 4, gap       # the ramp-down itself is there to check
-    ratio = fd_limits_ratio(gap, scenario.uplink.period_s,
+    # No jump: from a second before the kill through the ramp-down, the restart and the
+    # re-join, the commands stay within the FD limits.
+    window = guard[(guard[:, 1] > accepted[first_of_second - 1, 3] - 1.0) &
+                   (guard[:, 1] < t_restart + 4.0)]
+    assert len(window) >= 8, window
+    ratio = fd_limits_ratio(window[:, 3:], scenario.uplink.period_s,
                             scenario.smoother.max_acceleration_rad_per_s2,
                             scenario.smoother.max_jerk_rad_per_s3)
     assert ratio.acceleration <= 1 + 1e-6 and ratio.jerk <= 1 + 1e-6, ratio
