@@ -322,6 +322,11 @@ def AddOnboardCommandPath(builder: DiagramBuilder, scenario: Scenario, *, packet
     builder.Connect(receiver.get_q_commanded_output_port(), guard.get_q_accepted_input_port())
     builder.Connect(receiver.get_accepted_count_output_port(),
                     guard.get_accepted_count_input_port())
+    # The packet identity lets the guard see a gap (a lost or reordered packet).
+    builder.Connect(receiver.get_last_command_seq_output_port(),
+                    guard.get_command_seq_input_port())
+    builder.Connect(receiver.get_last_command_session_output_port(),
+                    guard.get_command_session_input_port())
     return receiver, guard
 
 
@@ -339,8 +344,10 @@ def add_link_loggers(builder, receiver: JointCommandReceiver, guard: LinkGuard,
         "guard_q_commanded": LogVectorOutput(guard.get_q_commanded_output_port(), builder,
                                              period_s),
         "guard_mode": LogVectorOutput(guard.get_guard_mode_output_port(), builder, period_s),
-        "guard_command_count": LogVectorOutput(guard.GetOutputPort("command_count"), builder,
+        "guard_command_count": LogVectorOutput(guard.get_command_count_output_port(), builder,
                                                period_s),
+        "guard_stop_outcome": LogVectorOutput(guard.get_stop_outcome_output_port(), builder,
+                                              period_s),
     }
 
 

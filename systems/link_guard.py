@@ -64,8 +64,8 @@ GUARD_MODES = ("track", "stopping", "held", "resuming")
 _COMMAND_HISTORY_LENGTH = SENT_HISTORY_LENGTH  # p_{k−3}, p_{k−2}, p_{k−1}
 # Layout of the bookkeeping state vector.
 (_COUNT_SEEN, _COUNT_CONSUMED, _PENDING, _LAST_PACKET_POLL, _LAST_COMMAND_POLL, _PLAN_LENGTH,
- _PLAN_INDEX, _MATCHES, _COMMAND_COUNT) = range(9)
-_BOOKKEEPING_SIZE = 9
+ _PLAN_INDEX, _MATCHES, _COMMAND_COUNT, _USED_SEQ, _USED_SESSION) = range(11)
+_BOOKKEEPING_SIZE = 11
 
 
 @dataclasses.dataclass(frozen=True)
@@ -191,6 +191,8 @@ class _GuardState:
     matches: int
     command_count: int
     limiter: np.ndarray           # OnlineHardLimiter state vector
+    used_seq: float               # (seq, session) of the packet the last command used
+    used_session: float           # (NaN: none, or a packet that was ignored)
 
     @property
     def history(self) -> np.ndarray:
@@ -208,6 +210,8 @@ class LinkGuard(LeafSystem):
         input_ports:
         - q_accepted
         - accepted_count
+        - command_seq (optional)
+        - command_session (optional)
         output_ports:
         - q_commanded
         - guard_mode
@@ -222,6 +226,12 @@ class LinkGuard(LeafSystem):
     - ``accepted_count``: packets accepted so far, (1,) (``JointCommandReceiver.accepted_count``;
       0 before the first). Any increase means "a new command was accepted"; a decrease (a
       restarted receiver) only re-baselines the count.
+    - ``command_seq``, ``command_session``: optional, (1,) each: the sequence number and
+      session of the packet on ``q_accepted`` (``JointCommandReceiver.last_command_seq`` and
+      ``last_command_session``). When connected, a packet is *consecutive* only if it is the
+      next seq of the same session as the packet the last command used; unconnected, every
+      single new packet counts as consecutive (the count alone cannot see a packet the link
+      lost or reordered before the receiver).
     - ``q_commanded``: the command for the robot, rad, (J,).
     - ``guard_mode``: (1,), the index in :data:`GUARD_MODES`: 0 track, 1 stopping, 2 held,
       3 resuming.
@@ -261,8 +271,14 @@ class LinkGuard(LeafSystem):
     **Rules per poll** (p_{k−3}, p_{k−2}, p_{k−1} = the last three commanded poses,
     r = ``q_accepted``):
 
-    - TRACK: a pending packet is commanded unchanged, p_k = r, at once. Else, if
-      i − i_pkt ≥ T: a stop is planned (below).
+    - TRACK: a pending packet that is *consecutive* (exactly one packet accepted since the
+      packet the last command used and, with ``command_seq`` connected, the next seq of the
+      same session) is commanded unchanged, p_k = r, at once. A pending packet after a gap
+      (a packet lost or held back by the link while the rest arrive in time, two packets
+      accepted in one poll, a new session) is not: passing it through would skip a sample
+      of the stream, a step in acceleration and jerk. It is joined like a re-join from
+      STOPPING (below) at the next guard tick. Else, if i − i_pkt ≥ T: a stop is planned
+      (below).
     - Planning a stop: plan = CollisionStopPlanner(Δt = period_s, the limits,
       ``pose_is_safe``, allow_reverse = True, rounding_tolerance =
       STOPPABLE_ROUNDING_TOLERANCE).plan([p_{k−3}, p_{k−2}, p_{k−1}], max_ticks =
@@ -277,11 +293,11 @@ class LinkGuard(LeafSystem):
       and the history becomes p_{k−1} three times (the robot rests there from now on).
     - STOPPING, HELD or RESUMING with a pending packet, at a guard tick (i − i_cmd ≥ P):
       one re-join tick. The limiter (rule "braking", the same limits, Δt = period_s) is
-      started, from HELD, at rest at p_{k−1} (``reset``); from STOPPING, moving with the FD
+      started, from HELD, at rest at p_{k−1} (``reset``); from STOPPING or TRACK, moving with the FD
       state of [p_{k−3}, p_{k−2}, p_{k−1}] and target history r, r; in RESUMING it continues
       from its state in the Context. Then p_k = limiter.step(r) (the newest packet, which
       the tick consumes). Mode RESUMING; m ← m + 1 if p_k = r exactly (bit for bit) and
-      exactly one packet was accepted since the packet the previous command used, else
+      r is consecutive to the packet the previous command used (as in TRACK), else
       m ← 0; when m = ``resume_match_ticks`` → TRACK. Then the last three commands are
       three consecutive packets, so the FD state of what was commanded is the stream's own
       and pass-through adds no step. (The limiter reproduces a stream that is itself within
@@ -393,6 +409,8 @@ class LinkGuard(LeafSystem):
 
         self._q_accepted_input = self.DeclareVectorInputPort("q_accepted", n)
         self._accepted_count_input = self.DeclareVectorInputPort("accepted_count", 1)
+        self._command_seq_input = self.DeclareVectorInputPort("command_seq", 1)
+        self._command_session_input = self.DeclareVectorInputPort("command_session", 1)
 
         self._q_state = self.DeclareDiscreteState(q0)
         self._mode_state = self.DeclareDiscreteState([float(MODE_HELD)])
@@ -403,6 +421,7 @@ class LinkGuard(LeafSystem):
         bookkeeping = np.zeros(_BOOKKEEPING_SIZE)
         # The first re-join tick may come at once: the "last command" is one period back.
         bookkeeping[_LAST_COMMAND_POLL] = -config.period_polls
+        bookkeeping[[_USED_SEQ, _USED_SESSION]] = math.nan  # no packet used yet
         self._bookkeeping_state = self.DeclareDiscreteState(bookkeeping)
         self._plan_state = self.DeclareDiscreteState(np.zeros(config.max_stop_ticks * n))
         self._limiter_state = self.DeclareDiscreteState(self._limiter.get_state_vector())
@@ -486,6 +505,12 @@ class LinkGuard(LeafSystem):
     def get_accepted_count_input_port(self):
         return self._accepted_count_input
 
+    def get_command_seq_input_port(self):
+        return self._command_seq_input
+
+    def get_command_session_input_port(self):
+        return self._command_session_input
+
     def get_q_commanded_output_port(self):
         return self._q_commanded_output
 
@@ -508,7 +533,12 @@ class LinkGuard(LeafSystem):
         poll = int(round(context.get_time() / self._config.poll_period_s))
         count = float(self._accepted_count_input.Eval(context)[0])
         q_accepted = np.array(self._q_accepted_input.Eval(context), dtype=float)
-        self._poll(state, poll, count, q_accepted)
+        identity = None
+        if self._command_seq_input.HasValue(context):
+            session = (float(self._command_session_input.Eval(context)[0])
+                       if self._command_session_input.HasValue(context) else 0.0)
+            identity = (float(self._command_seq_input.Eval(context)[0]), session)
+        self._poll(state, poll, count, q_accepted, identity)
         self._pack(state, discrete_state)
 
     def _unpack(self, context) -> _GuardState:
@@ -534,6 +564,8 @@ class LinkGuard(LeafSystem):
             matches=int(book[_MATCHES]),
             command_count=int(book[_COMMAND_COUNT]),
             limiter=get(self._limiter_state).copy(),
+            used_seq=float(book[_USED_SEQ]),
+            used_session=float(book[_USED_SESSION]),
         )
 
     def _pack(self, s: _GuardState, discrete_state) -> None:
@@ -542,9 +574,11 @@ class LinkGuard(LeafSystem):
 
         book = np.zeros(_BOOKKEEPING_SIZE)
         book[[_COUNT_SEEN, _COUNT_CONSUMED, _PENDING, _LAST_PACKET_POLL, _LAST_COMMAND_POLL,
-              _PLAN_LENGTH, _PLAN_INDEX, _MATCHES, _COMMAND_COUNT]] = [
+              _PLAN_LENGTH, _PLAN_INDEX, _MATCHES, _COMMAND_COUNT, _USED_SEQ,
+              _USED_SESSION]] = [
             s.count_seen, s.count_consumed, float(s.pending), s.last_packet_poll,
-            s.last_command_poll, s.plan_length, s.plan_index, s.matches, s.command_count]
+            s.last_command_poll, s.plan_length, s.plan_index, s.matches, s.command_count,
+            s.used_seq, s.used_session]
         put(self._q_state, s.q)
         put(self._older_state, s.older)
         put(self._mode_state, [float(s.mode)])
@@ -555,8 +589,10 @@ class LinkGuard(LeafSystem):
         put(self._plan_state, s.plan)
         put(self._limiter_state, s.limiter)
 
-    def _poll(self, s: _GuardState, poll: int, count: float, q_accepted: np.ndarray) -> None:
-        """One poll (the rules of the class docstring), on the unpacked state ``s``."""
+    def _poll(self, s: _GuardState, poll: int, count: float, q_accepted: np.ndarray,
+              identity: tuple[float, float] | None = None) -> None:
+        """One poll (the rules of the class docstring), on the unpacked state ``s``;
+        ``identity`` is the (seq, session) of ``q_accepted``'s packet, or None (unknown)."""
         if count < s.count_seen:  # a restarted receiver: re-baseline, nothing new
             s.count_seen = s.count_consumed = count
         elif count > s.count_seen:
@@ -567,9 +603,9 @@ class LinkGuard(LeafSystem):
             else:  # never commanded; as if lost (the receiver never passes one)
                 s.count_consumed = count
                 s.pending = False  # q_accepted no longer holds the earlier packet
-        if s.mode == MODE_TRACK and s.pending:
-            s.pending = False
-            s.count_consumed = count
+                s.used_seq = s.used_session = math.nan  # the next packet follows a gap
+        if s.mode == MODE_TRACK and s.pending and self._consecutive(s, count, identity):
+            self._use_packet(s, count, identity)
             self._issue(s, q_accepted, poll)
             return
         silent = poll - s.last_packet_poll >= self._config.timeout_polls
@@ -577,10 +613,29 @@ class LinkGuard(LeafSystem):
             self._start_stop(s)
         if poll - s.last_command_poll < self._config.period_polls:
             return  # not a guard tick
-        if s.pending and s.mode != MODE_TRACK:
-            self._rejoin_tick(s, poll, count, q_accepted)
+        if s.pending:  # in TRACK only after a gap
+            self._rejoin_tick(s, poll, count, q_accepted, identity)
         elif s.mode == MODE_STOPPING:
             self._stop_tick(s, poll)
+
+    @staticmethod
+    def _consecutive(s: _GuardState, count: float,
+                     identity: tuple[float, float] | None) -> bool:
+        """Whether the pending packet directly follows the packet the last command used."""
+        if count - s.count_consumed != 1.0:
+            return False
+        if identity is None:
+            return True
+        seq, session = identity
+        return session == s.used_session and seq == s.used_seq + 1.0
+
+    @staticmethod
+    def _use_packet(s: _GuardState, count: float,
+                    identity: tuple[float, float] | None) -> None:
+        """The pending packet is consumed by the command being made."""
+        s.pending = False
+        s.count_consumed = count
+        s.used_seq, s.used_session = (math.nan, math.nan) if identity is None else identity
 
     def pose_is_within_limits(self, q) -> bool:
         """Finite and within [lower_rad, upper_rad] (what the receiver guarantees)."""
@@ -626,19 +681,18 @@ class LinkGuard(LeafSystem):
         if s.plan_index >= s.plan_length:
             s.mode = MODE_HELD  # at rest at the plan's last command
 
-    def _rejoin_tick(self, s: _GuardState, poll: int, count: float,
-                     q_accepted: np.ndarray) -> None:
+    def _rejoin_tick(self, s: _GuardState, poll: int, count: float, q_accepted: np.ndarray,
+                     identity: tuple[float, float] | None = None) -> None:
         limiter = self._limiter
         if s.mode == MODE_HELD:
             limiter.reset(s.q)
-        elif s.mode == MODE_STOPPING:
+        elif s.mode in (MODE_STOPPING, MODE_TRACK):
             start_limiter_moving(limiter, s.history, q_accepted)
         else:
             limiter.set_state_vector(s.limiter)
         command = limiter.step(q_accepted)
-        one_new_packet = count - s.count_consumed == 1.0
-        s.pending = False
-        s.count_consumed = count
+        consecutive = self._consecutive(s, count, identity)
+        self._use_packet(s, count, identity)
         if not self.pose_is_safe(command):
             # Never issued: stop from what was commanded (checked pose by pose) or hold.
             self._start_stop(s)
@@ -647,7 +701,7 @@ class LinkGuard(LeafSystem):
             return
         self._issue(s, command, poll)
         s.limiter = limiter.get_state_vector()
-        exact = one_new_packet and np.array_equal(command, q_accepted)
+        exact = consecutive and np.array_equal(command, q_accepted)
         s.matches = s.matches + 1 if exact else 0
         if s.matches >= self._config.resume_match_ticks:
             s.mode = MODE_TRACK

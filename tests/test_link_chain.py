@@ -6,11 +6,12 @@ LinkChannel → JointCommandReceiver → LinkGuard → plant) and checks, from t
 * nothing unsafe reached the robot: every command the guard issued is finite and inside the
   joint limits; every accepted command is one the ground sent (same seq, same positions),
   accepted in strictly increasing order (no stale or duplicate packet is ever accepted);
-* nothing accepted was lost: every command accepted while the guard tracks is commanded
-  exactly, at once;
+* nothing accepted was lost: every command accepted while the guard tracks, directly after
+  the packet before it, is commanded exactly, at once (one after a gap, a lost or held-back
+  packet, is joined through the limiter instead);
 * what the guard generates itself (ramp-down, re-join) stays within the FD acceleration and
-  jerk limits; with a ground stream within the limits (online-hard) and a link that keeps
-  the packet order, so does everything that reaches the robot.
+  jerk limits; with a ground stream within the limits (online-hard), so does everything that
+  reaches the robot, whatever the link does to the packets.
 """
 
 import numpy as np
@@ -83,9 +84,16 @@ def test_nothing_unsafe_reached_the_robot_and_nothing_accepted_was_lost(case):
     for row, k in zip(accepted_rows, accepted_seq):
         np.testing.assert_array_equal(q_accepted[row], sent[k])   # what the ground sent
     mode = logs["guard_mode"].data()[0]
-    for row in accepted_rows:
-        if mode[row - 1] == MODE_TRACK and mode[row] == MODE_TRACK:
+    passed = 0
+    for j, row in enumerate(accepted_rows[1:], start=1):
+        # Accepted while tracking, directly after the packet before it: commanded at once.
+        consecutive = (accepted_seq[j] == accepted_seq[j - 1] + 1
+                       and count[row] == count[row - 1] + 1)
+        if consecutive and mode[row - 1] == MODE_TRACK and mode[row] == MODE_TRACK:
             np.testing.assert_array_equal(guard_q[row], q_accepted[row])
+            passed += 1
+    if name in ("none", "delay 2 s", "duplicates 50 %"):
+        assert passed >= 10, name   # the check above really ran
 
     # The link did what it was told, and the receiver counted it.
     counts = handles.onboard.link.counts(handles.onboard.link.GetMyContextFromRoot(context))
@@ -113,9 +121,16 @@ def test_the_guard_keeps_the_limits(case):
     for i in generated[generated >= 3]:
         ratio = fd_limits_ratio(commands[i - 3:i + 1], dt, a_max, j_max)
         assert ratio.acceleration <= 1 + 1e-6 and ratio.jerk <= 1 + 1e-6, (name, i, ratio)
-    if ordered:
-        ratio = fd_limits_ratio(commands, dt, a_max, j_max)
+    # With the packet identity the guard sees every gap (lost, reordered, late), so the
+    # whole command sequence is within the limits in every case, unless a stop fell back
+    # to the hold (a velocity step, reported).
+    hold_fallback = np.any(logs["guard_stop_outcome"].data()[0] >= 3)
+    ratio = fd_limits_ratio(commands, dt, a_max, j_max)
+    if not hold_fallback:
         assert ratio.acceleration <= 1 + 1e-6 and ratio.jerk <= 1 + 1e-6, (name, ratio)
+    if not ordered:
+        # The gaps were real: the guard joined some packets through the limiter.
+        assert np.any(mode == 3), name
     if "outage" in name:
         # It ramped down (stopping, held), then re-joins within the limits: with the
         # scenario's a_max = 0.05 rad/s², catching up 1.5 s of operator motion takes longer

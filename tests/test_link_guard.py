@@ -89,16 +89,22 @@ def assert_within_limits(sequence):
 class PacketScript(LeafSystem):
     """Test source with the receiver's outputs: packet k (row k of ``positions``) is accepted
     at poll ``arrival_polls[k]``; ``accepted_count`` counts them, ``q_accepted`` holds the
-    newest (q0 before the first)."""
+    newest (q0 before the first), ``command_seq`` its seq (``seqs[k]``, default k; −1 before
+    the first) and ``command_session`` 7."""
 
-    def __init__(self, q0, arrival_polls, positions):
+    def __init__(self, q0, arrival_polls, positions, seqs=None):
         super().__init__()
+        self._seqs = np.arange(len(arrival_polls)) if seqs is None else np.asarray(seqs)
         self._q0 = np.asarray(q0, dtype=float)
         self._polls = np.asarray(arrival_polls, dtype=int)
         self._q = np.asarray(positions, dtype=float).reshape(len(self._polls), len(q0))
-        assert np.all(np.diff(self._polls) > 0)
+        assert np.all(np.diff(self._polls) >= 0)   # equal: accepted in the same poll
         self.DeclareVectorOutputPort("q_accepted", len(q0), self._calc_q)
         self.DeclareVectorOutputPort("accepted_count", 1, self._calc_count)
+        self.DeclareVectorOutputPort(
+            "command_seq", 1, lambda c, o: o.SetAtIndex(
+                0, -1.0 if self._count(c) == 0 else float(self._seqs[self._count(c) - 1])))
+        self.DeclareVectorOutputPort("command_session", 1, lambda c, o: o.SetAtIndex(0, 7.0))
 
     def _count(self, context):
         return int(np.searchsorted(self._polls, round(context.get_time() / POLL), "right"))
@@ -166,13 +172,18 @@ class GuardRun:
         return segments
 
 
-def run_guard(dut, arrival_polls, positions, duration_s, q0=Q0):
+def run_guard(dut, arrival_polls, positions, duration_s, q0=Q0, *, seqs=None,
+              connect_seq=False):
     builder = DiagramBuilder()
-    source = builder.AddSystem(PacketScript(q0, arrival_polls, positions))
+    source = builder.AddSystem(PacketScript(q0, arrival_polls, positions, seqs))
     guard = builder.AddSystem(dut)
     builder.Connect(source.GetOutputPort("q_accepted"), guard.get_q_accepted_input_port())
     builder.Connect(source.GetOutputPort("accepted_count"),
                     guard.get_accepted_count_input_port())
+    if connect_seq or seqs is not None:
+        builder.Connect(source.GetOutputPort("command_seq"), guard.get_command_seq_input_port())
+        builder.Connect(source.GetOutputPort("command_session"),
+                        guard.get_command_session_input_port())
     ports = {"q": guard.get_q_commanded_output_port(),
              "mode": guard.get_guard_mode_output_port(),
              "count": guard.get_command_count_output_port(),
@@ -463,6 +474,78 @@ def test_random_lossy_streams_stay_within_the_limits_and_track_exactly(case):
     assert out.mode[-1] == MODE_HELD
 
 
+# -- gaps while tracking ----------------------------------------------------------------------
+
+def test_a_packet_missing_while_tracking_is_joined_through_the_limiter():
+    # A stream within the limits; packet 20 never reaches the guard (lost, or held back and
+    # then dropped as stale by the receiver) while the others arrive on time, so the silence
+    # stays below the timeout.
+    z = limited_stream(Q0, np.array([[1.0, 0.5]] * 12 + [[-0.5, 1.0]] * 60))
+    seqs = np.delete(np.arange(len(z)), 20)
+    polls = on_the_grid(len(z))[seqs]
+    config = LinkGuardConfig(timeout_s=0.6)
+    # Oracle of the harm: passed through, the gap breaks the jerk limit.
+    assert ratios(np.delete(z, 20, axis=0)).jerk > 1.0 + 1e-3
+    blind = run_guard(make_guard(config=config), polls, z[seqs], (polls[-1] + 10) * POLL)
+    np.testing.assert_array_equal(blind.commands, z[seqs])   # no identity: passed through
+    out = run_guard(make_guard(config=config), polls, z[seqs], (polls[-1] + 10) * POLL,
+                    seqs=seqs)
+    after = polls[20]
+    # Up to the gap: exactly the stream. The packet after the gap: not passed through, a
+    # limiter step (RESUMING) at the same poll (one period after the last command).
+    np.testing.assert_array_equal(out.q[polls[:20]], z[:20])
+    assert out.mode_before[after] == MODE_TRACK and out.mode[after] == MODE_RESUMING
+    assert out.issued[after] and not np.array_equal(out.q[after], z[21])
+    # The whole command sequence is within the limits, and the guard hands back to TRACK:
+    # from then on the packets pass through exactly.
+    for segment in out.segments():
+        assert_within_limits(segment)
+    tracking = [k for k, poll in enumerate(polls) if out.mode_before[poll] == MODE_TRACK
+                and poll > after]
+    assert len(tracking) >= 5
+    for k in tracking:
+        np.testing.assert_array_equal(out.q[polls[k]], z[seqs[k]])
+
+
+def test_two_packets_accepted_in_one_poll_while_tracking_are_not_a_pass_through():
+    # Without seq: the count alone shows the gap (two packets used by one command).
+    z = limited_stream(Q0, np.array([[1.0, 0.5]] * 60))
+    polls = on_the_grid(len(z))
+    polls[15] = polls[16]            # packet 15 late: accepted in the same poll as 16
+    config = LinkGuardConfig(timeout_s=0.6)   # (a silence of 2Δt is not yet a timeout)
+    out = run_guard(make_guard(config=config), polls, z, (polls[-1] + 5) * POLL)
+    assert out.mode_before[polls[16]] == MODE_TRACK and out.mode[polls[16]] == MODE_RESUMING
+    assert not np.array_equal(out.q[polls[16]], z[16])
+    for segment in out.segments():
+        assert_within_limits(segment)
+    assert out.mode[-1] == MODE_TRACK and np.array_equal(out.q[-1], z[-1])
+
+
+@settings(derandomize=True, database=None, deadline=None, max_examples=15,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(case=lossy_streams())
+def test_random_gaps_below_the_timeout_stay_within_the_limits(case):
+    # A long timeout, so that lost packets are gaps while tracking rather than silences.
+    q0, targets, keep, jitter = case
+    z = limited_stream(q0, targets, max_velocity=0.6)
+    seqs = np.flatnonzero(keep)
+    polls = (on_the_grid(len(z)) + jitter)[keep]
+    if polls.size == 0:
+        return
+    out = run_guard(make_guard(q0, config=LinkGuardConfig(timeout_s=3.0)), polls, z[keep],
+                    (polls[-1] + 60 * PERIOD_POLLS) * POLL, q0=q0, seqs=seqs)
+    # Consecutive packets accepted in TRACK are commanded exactly, at once.
+    for j, (poll, q) in enumerate(zip(polls, z[keep])):
+        if j and seqs[j] == seqs[j - 1] + 1 and out.mode_before[poll] == MODE_TRACK:
+            assert out.issued[poll]
+            np.testing.assert_array_equal(out.q[poll], q)
+    assert out.fallbacks().size == 0
+    for segment in out.segments():
+        assert_within_limits(segment)
+    out.assert_guard_commands_are_a_period_apart()
+    assert out.mode[-1] == MODE_HELD
+
+
 # -- the stoppable-set rounding ---------------------------------------------------------------
 
 def saturated_histories():
@@ -521,7 +604,7 @@ def test_ports_modes_and_initial_outputs():
     dut = make_guard()
     inputs = [dut.get_input_port(i).get_name() for i in range(dut.num_input_ports())]
     outputs = [dut.get_output_port(i).get_name() for i in range(dut.num_output_ports())]
-    assert inputs == ["q_accepted", "accepted_count"]
+    assert inputs == ["q_accepted", "accepted_count", "command_seq", "command_session"]
     assert outputs == ["q_commanded", "guard_mode", "braking_distance", "stop_outcome",
                        "command_count"]
     assert [dut.get_output_port(i).size() for i in range(5)] == [2, 1, 2, 1, 1]
