@@ -512,7 +512,8 @@ def MakeGroundDiagram(scenario: Scenario, *, lcm: DrakeLcm, session_id: int = 0,
 
 
 def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm, initial_position_rad=None,
-                       uplink_key: bytes | None = None) -> TeleoperationHandles:
+                       uplink_key: bytes | None = None,
+                       uplink_lcm=None) -> TeleoperationHandles:
     """The onboard process: TELEOP_JOINT_COMMAND → receiver → link guard → plant → telemetry.
 
     Every packet is examined (:class:`JointCommandReceiver`: authentication when
@@ -520,6 +521,10 @@ def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm, initial_position_ra
     validity); the :class:`LinkGuard` ramps the robot down within the limits when commands
     stop and re-joins them without a jump. ``initial_position_rad`` defaults to the
     scenario's (or the IK of its first pose).
+
+    ``uplink_lcm``: optional ``lcm.LCM`` (the ``lcm`` package) on the same bus as ``lcm``
+    for the uplink subscription, which then queues a burst of packets instead of keeping
+    one (:mod:`~telesmooth.systems.lcm_safe_subscriber`); the onboard process uses one.
     """
     arm = scenario.arm_description
     if initial_position_rad is None:
@@ -528,7 +533,8 @@ def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm, initial_position_ra
     builder.AddNamedSystem("lcm", LcmInterfaceSystem(lcm))
     # A subscriber that survives malformed packets; the receiver examines every packet.
     subscriber = builder.AddNamedSystem("joint_command_subscriber", LcmSafeSubscriber(
-        channel=TELEOP_JOINT_COMMAND, lcm_type=lcmt_teleop_joint_command, lcm=lcm))
+        channel=TELEOP_JOINT_COMMAND, lcm_type=lcmt_teleop_joint_command,
+        lcm=lcm if uplink_lcm is None else uplink_lcm))
     receiver, guard = AddOnboardCommandPath(
         builder, scenario, packets=subscriber.get_packets_output_port(),
         initial_position_rad=initial_position_rad, uplink_key=uplink_key)

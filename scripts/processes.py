@@ -156,9 +156,15 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
     from telesmooth.diagrams.teleoperation import MakeOnboardDiagram
     from telesmooth.systems.link_guard import GUARD_MODES
 
+    import lcm as lcm_module
+
     scenario = _with_authentication(scenario, uplink_key)
     lcm = DrakeLcm(_check_url(lcm_url))
-    handles = MakeOnboardDiagram(scenario, lcm=lcm, uplink_key=uplink_key)
+    # The uplink through the lcm package: its subscription queues a burst of packets
+    # (DrakeLcm's keeps one). memq:// is per instance, so there the DrakeLcm is used.
+    uplink_lcm = lcm_module.LCM(lcm_url) if lcm_url.startswith("udpm://") else None
+    handles = MakeOnboardDiagram(scenario, lcm=lcm, uplink_key=uplink_key,
+                                 uplink_lcm=uplink_lcm)
     _log(f"onboard: listening on {lcm_url} for {duration_s:.2f} s (authentication "
          f"{scenario.command_receiver.authentication})")
     simulator = Simulator(handles.diagram)

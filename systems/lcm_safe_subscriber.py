@@ -9,16 +9,26 @@ message holds, and counters, a flag and the error text say what was thrown away.
 (:class:`~telesmooth.systems.joint_command_receiver.JointCommandReceiver`,
 :class:`~telesmooth.systems.haptic_command_receiver.HapticCommandReceiver`) take the flag as a
 rejected message, so the robot keeps holding its last accepted command.
+
+It subscribes through Drake's ``DrakeLcm`` (pumped by the diagram's ``LcmInterfaceSystem``)
+or through an ``lcm.LCM`` of the ``lcm`` Python package, which the system pumps itself at
+every simulator step. Prefer the latter where every packet counts (the onboard uplink): a
+``DrakeLcm`` subscription queues one message, so of a burst of packets that arrive between
+two pumps only part reaches the handler (measured: 2 of 3 sent back to back), and nothing
+counts the rest; an ``lcm.LCM`` subscription queues ``queue_capacity`` of them.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-__all__ = ["LcmSafeSubscriber"]
+__all__ = ["DEFAULT_QUEUE_CAPACITY", "RECENT_PACKETS", "LcmSafeSubscriber"]
+
+_logger = logging.getLogger(__name__)
 
 _FINGERPRINT_BYTES = 8
 """lcm-gen Python types start every encoded message with an 8-byte type fingerprint."""
@@ -42,6 +52,13 @@ class _Received:
 RECENT_PACKETS = 256
 """How many raw packets the ``packets`` output keeps (at 4 Hz, a minute of uplink; a
 receiver polled every 10 ms sees each of them)."""
+
+DEFAULT_QUEUE_CAPACITY = RECENT_PACKETS
+"""Packets an ``lcm.LCM`` subscription queues between two pumps (one per simulator step):
+a burst up to this size reaches the handler whole, and fits the ``packets`` window."""
+
+_MAX_PUMPED_PER_STEP = 4 * RECENT_PACKETS
+"""Most packets one step takes from an ``lcm.LCM`` (a flood cannot stall the simulator)."""
 
 
 class _Inbox:
@@ -127,23 +144,34 @@ class LcmSafeSubscriber(LeafSystem):
       of (packet number from 1, bytes), oldest first (abstract); for receivers that must
       examine every packet (duplicates, replays, forgeries), not only the newest.
 
-    Packets arrive whenever someone pumps the ``lcm`` (an ``LcmInterfaceSystem`` in the
-    diagram does so as the simulator advances, and then schedules a step at the current
-    time). A per-step unrestricted update copies what has arrived into the state, so outputs
-    change at the first step after a packet arrives, at the same simulation time, as with
+    With a ``DrakeLcm``, packets arrive whenever someone pumps it (an ``LcmInterfaceSystem``
+    in the diagram does so as the simulator advances, and then schedules a step at the
+    current time); with an ``lcm.LCM``, this system pumps it (without waiting) at the start
+    of every simulator step, so a packet is seen at the first step after it arrives (the
+    diagram must step often enough: the onboard receiver polls every 10 ms). A per-step
+    unrestricted update copies what has arrived into the state, so outputs change at the
+    first step after a packet arrives, at the same simulation time, as with
     ``LcmSubscriberSystem``. If several packets arrive between two steps only the newest
-    decodable one is kept (all are counted). State: the raw bytes of the newest good packet
+    decodable one is on ``lcm_message`` (all are counted, and all are on ``packets``). State: the raw bytes of the newest good packet
     (the output port decodes them), the error text, and [message_count, undecodable_count,
     message_undecodable].
     """
 
-    def __init__(self, *, channel: str, lcm_type, lcm):
-        """Subscribes to ``channel`` on ``lcm`` (a ``DrakeLcmInterface``).
+    def __init__(self, *, channel: str, lcm_type, lcm,
+                 queue_capacity: int = DEFAULT_QUEUE_CAPACITY):
+        """Subscribes to ``channel`` on ``lcm``.
 
         Args:
             channel: The LCM channel name.
             lcm_type: An lcm-gen Python message class (``decode``, ``_get_packed_fingerprint``).
-            lcm: The ``DrakeLcm``; it must outlive the simulation, and be pumped.
+            lcm: A ``DrakeLcm`` (it must outlive the simulation, and be pumped by an
+                ``LcmInterfaceSystem``), or an ``lcm.LCM`` of the ``lcm`` package (pumped by
+                this system at every step; it must outlive the simulation).
+            queue_capacity: For an ``lcm.LCM``: packets its subscription queues between two
+                steps (an integer >= 1). Ignored for a ``DrakeLcm`` (its queue holds one).
+
+        Raises:
+            ValueError: naming the argument and the value.
         """
         super().__init__()
         if not isinstance(channel, str) or not channel:
@@ -152,9 +180,21 @@ class LcmSafeSubscriber(LeafSystem):
             if not hasattr(lcm_type, attribute):
                 raise ValueError(f"lcm_type = {lcm_type!r} is not an lcm-gen message type "
                                  f"(it has no {attribute!r})")
+        if isinstance(queue_capacity, bool) or not isinstance(queue_capacity, int) \
+                or queue_capacity < 1:
+            raise ValueError(f"queue_capacity = {queue_capacity!r} must be an integer >= 1")
         self._lcm_type = lcm_type
         self._inbox = _Inbox(channel, lcm_type)
-        lcm.Subscribe(channel, self._inbox.handle)
+        self._pumped_lcm = None
+        if hasattr(lcm, "handle_timeout") and hasattr(lcm, "subscribe"):   # lcm.LCM
+            inbox = self._inbox
+            subscription = lcm.subscribe(channel, lambda _channel, data: inbox.handle(data))
+            subscription.set_queue_capacity(queue_capacity)
+            self._pumped_lcm = lcm
+        elif hasattr(lcm, "Subscribe"):                                     # DrakeLcm
+            lcm.Subscribe(channel, self._inbox.handle)
+        else:
+            raise ValueError(f"lcm = {lcm!r} must be a pydrake DrakeLcm or an lcm.LCM")
         self._bytes_state = self.DeclareAbstractState(AbstractValue.Make(b""))
         self._error_state = self.DeclareAbstractState(AbstractValue.Make(""))
         self._packets_state = self.DeclareAbstractState(AbstractValue.Make(()))
@@ -200,7 +240,23 @@ class LcmSafeSubscriber(LeafSystem):
         # These bytes decoded once in the handler, so decoding them again cannot fail.
         output.set_value(self._lcm_type.decode(data) if data else self._lcm_type())
 
+    @property
+    def pumps_its_own_lcm(self) -> bool:
+        """Whether this system pumps its ``lcm.LCM`` itself (at every step)."""
+        return self._pumped_lcm is not None
+
+    def _pump(self) -> None:
+        """Hands every packet queued on the ``lcm.LCM`` to the inbox, without waiting."""
+        try:
+            for _ in range(_MAX_PUMPED_PER_STEP):
+                if self._pumped_lcm.handle_timeout(0) <= 0:
+                    break
+        except OSError as error:   # a broken socket must not kill the running diagram
+            _logger.error("LCM receive failed: %s", error)
+
     def _update_received(self, context, state):
+        if self._pumped_lcm is not None:
+            self._pump()
         received = self._inbox.received
         status = self._status(context)
         counts = (received.message_count, received.undecodable_count)

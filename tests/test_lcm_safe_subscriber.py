@@ -267,3 +267,87 @@ def test_ground_process_survives_garbage_from_the_haptic_device():
         # Clutch off, pose held: a broken device can never move the arm.
         assert step(bad, t) == ([0.72, 0.01, 0.0], 0.0, 1.0)
     assert step(_haptic(3, [0.71, -0.01, 0.0]).encode(), 0.1) == ([0.71, -0.01, 0.0], 1.0, 0.0)
+
+
+# -- an lcm.LCM (the lcm package), pumped by the subscriber itself ---------------------------
+
+def _pumped_subscriber(bus, **kwargs):
+    """A subscriber alone in a diagram on an ``lcm.LCM``; returns (simulator, system)."""
+    builder = DiagramBuilder()
+    dut = builder.AddSystem(LcmSafeSubscriber(channel=TELEOP_JOINT_COMMAND,
+                                              lcm_type=lcmt_teleop_joint_command, lcm=bus,
+                                              **kwargs))
+    simulator = Simulator(builder.Build())
+    simulator.Initialize()
+    return simulator, dut
+
+
+def _packet_seqs(simulator, dut):
+    context = dut.GetMyContextFromRoot(simulator.get_context())
+    packets = dut.get_packets_output_port().Eval(context)
+    return [lcmt_teleop_joint_command.decode(data).seq for _, data in packets
+            if data != b"garbage"]
+
+
+def test_an_lcm_package_bus_is_pumped_by_the_subscriber_and_keeps_every_packet():
+    import lcm as lcm_module
+
+    bus = lcm_module.LCM("memq://")
+    simulator, dut = _pumped_subscriber(bus)
+    assert dut.pumps_its_own_lcm
+    for k in range(100):                      # one burst, between two steps
+        bus.publish(TELEOP_JOINT_COMMAND, _command(k, [0.01 * k, 0.0]).encode())
+    bus.publish(TELEOP_JOINT_COMMAND, b"garbage")
+    simulator.AdvanceTo(0.01)
+    context = dut.GetMyContextFromRoot(simulator.get_context())
+    assert _packet_seqs(simulator, dut) == list(range(100))
+    assert len(dut.get_packets_output_port().Eval(context)) == 101
+    assert dut.get_message_count_output_port().Eval(context)[0] == 100
+    assert dut.get_undecodable_count_output_port().Eval(context)[0] == 1
+    assert dut.get_lcm_message_output_port().Eval(context).seq == 99   # newest good one
+    bus.publish(TELEOP_JOINT_COMMAND, _command(100, [1.0, 0.0]).encode())
+    simulator.AdvanceTo(0.02)
+    assert dut.get_message_count_output_port().Eval(context)[0] == 101
+
+
+def test_a_udpm_burst_reaches_the_onboard_subscriber_whole():
+    # 40 packets sent back to back over udpm (ttl=0): the lcm.LCM path sees every one; the
+    # DrakeLcm path (one queued message per subscription) is measured side by side.
+    import os
+    import time
+
+    import lcm as lcm_module
+
+    url = f"udpm://239.255.76.67:{7980 + os.getpid() % 15}?ttl=0"
+    sender = lcm_module.LCM(url)
+    simulator, dut = _pumped_subscriber(lcm_module.LCM(url))
+    small_simulator, small = _pumped_subscriber(lcm_module.LCM(url), queue_capacity=3)
+    drake_lcm = DrakeLcm(url)
+    builder = DiagramBuilder()
+    builder.AddSystem(LcmInterfaceSystem(drake_lcm))
+    drake_dut = builder.AddSystem(LcmSafeSubscriber(
+        channel=TELEOP_JOINT_COMMAND, lcm_type=lcmt_teleop_joint_command, lcm=drake_lcm))
+    drake_simulator = Simulator(builder.Build())
+    drake_simulator.Initialize()
+    for k in range(40):
+        sender.publish(TELEOP_JOINT_COMMAND, _command(k, [0.0, 0.0]).encode())
+    time.sleep(0.3)                                   # all of them are in the sockets
+    for sim in (simulator, small_simulator, drake_simulator):
+        sim.AdvanceTo(0.01)
+    assert _packet_seqs(simulator, dut) == list(range(40))
+    # The queue capacity is what keeps them: a queue of 3 keeps only part of the burst.
+    assert len(_packet_seqs(small_simulator, small)) < 40
+    print(f"burst of 40 over udpm: lcm.LCM path {len(_packet_seqs(simulator, dut))}, "
+          f"queue_capacity=3 {len(_packet_seqs(small_simulator, small))}, DrakeLcm path "
+          f"{len(_packet_seqs(drake_simulator, drake_dut))}")
+
+
+def test_lcm_and_queue_errors_name_the_argument():
+    import lcm as lcm_module
+
+    with pytest.raises(ValueError, match=r"queue_capacity = 0 must be an integer >= 1"):
+        LcmSafeSubscriber(channel="X", lcm_type=lcmt_teleop_joint_command,
+                          lcm=lcm_module.LCM("memq://"), queue_capacity=0)
+    with pytest.raises(ValueError, match=r"lcm = 'udpm://' must be a pydrake DrakeLcm or an "
+                                         r"lcm.LCM"):
+        LcmSafeSubscriber(channel="X", lcm_type=lcmt_teleop_joint_command, lcm="udpm://")
