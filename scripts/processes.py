@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import signal
 import sys
 import time
 from pathlib import Path
@@ -31,17 +32,37 @@ def _check_url(url: str) -> str:
 
 
 def _advance(simulator, duration_s: float, realtime: float, name: str, status=None) -> float:
-    """Runs to ``duration_s`` in 1 s slices, printing progress (and ``status()``, if given)."""
+    """Runs to ``duration_s`` in 0.25 s slices, printing progress (and ``status()``, if
+    given) every second. SIGINT or SIGTERM ends the run early but cleanly: the slice in
+    progress finishes and the caller writes its logs as after a full run."""
     if realtime > 0:
         simulator.set_target_realtime_rate(realtime)
     simulator.Initialize()
+    stopped_by = []
+
+    def on_signal(signum, _frame):
+        stopped_by.append(signal.Signals(signum).name)
+
+    previous = {signum: signal.signal(signum, on_signal)
+                for signum in (signal.SIGINT, signal.SIGTERM)}
     start = time.perf_counter()
-    steps = max(1, int(np.ceil(duration_s)))
-    for step in range(1, steps + 1):
-        simulator.AdvanceTo(min(duration_s, step) + (1e-9 if step == steps else 0.0))
-        extra = "" if status is None else f"; {status()}"
-        _log(f"{name}: {simulator.get_context().get_time():6.2f} / {duration_s:.2f} s "
-             f"(wall {time.perf_counter() - start:5.1f} s){extra}")
+    slice_s = 0.25
+    steps = max(1, int(np.ceil(duration_s / slice_s - 1e-9)))
+    try:
+        for step in range(1, steps + 1):
+            if stopped_by:
+                _log(f"{name}: {stopped_by[0]} at t = {simulator.get_context().get_time():.2f}"
+                     f" s; stopping early")
+                break
+            simulator.AdvanceTo(min(duration_s, step * slice_s)
+                                + (1e-9 if step == steps else 0.0))
+            if step % 4 == 0 or step == steps:
+                extra = "" if status is None else f"; {status()}"
+                _log(f"{name}: {simulator.get_context().get_time():6.2f} / {duration_s:.2f} s "
+                     f"(wall {time.perf_counter() - start:5.1f} s){extra}")
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
     return time.perf_counter() - start
 
 
@@ -198,8 +219,9 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
 
 def write_onboard_logs(out: Path, handles, context, names) -> None:
     """onboard_commands.csv: one row per accepted command (count, session, seq, time, q);
-    onboard_guard.csv: one row per guard command (count, time, mode, q) — what reached the
-    robot's interpolator."""
+    onboard_guard.csv: one row per guard command (count, time, mode, stop outcome of the last
+    stop plan, q) — what reached the robot's interpolator. Modes and outcomes are indices in
+    ``GUARD_MODES`` and ``STOP_OUTCOMES``."""
     from telesmooth.diagrams.teleoperation import first_sample_indices
 
     logs = handles.logs
@@ -216,8 +238,9 @@ def write_onboard_logs(out: Path, handles, context, names) -> None:
     guard_log = logs["guard_command_count"].FindLog(context)
     guard_count = guard_log.data()[0]
     mode = logs["guard_mode"].FindLog(context).data()[0]
+    outcome = logs["guard_stop_outcome"].FindLog(context).data()[0]
     commanded = logs["guard_q_commanded"].FindLog(context).data().T
-    rows = [[guard_count[i], guard_log.sample_times()[i], mode[i], *commanded[i]]
+    rows = [[guard_count[i], guard_log.sample_times()[i], mode[i], outcome[i], *commanded[i]]
             for i in first_sample_indices(guard_count)]
     _write_rows(out / "onboard_guard.csv",
-                ["command", "t", "mode"] + [f"q_{j}" for j in names], rows)
+                ["command", "t", "mode", "stop_outcome"] + [f"q_{j}" for j in names], rows)

@@ -206,9 +206,9 @@ def test_only_authentic_commands_were_accepted_and_none_was_lost(fault_run):
 
 def test_the_robot_ramped_down_after_the_kill_and_the_restart_continued_from_it(fault_run):
     scenario = fault_run["scenario"]
-    guard = _read(fault_run["out"] / "onboard_guard.csv")   # command, t, mode, q…
+    guard = _read(fault_run["out"] / "onboard_guard.csv")   # command, t, mode, outcome, q…
     accepted = _read(fault_run["out"] / "onboard_commands.csv")
-    q = guard[:, 3:]
+    q = guard[:, 4:]
     assert np.all(np.isfinite(q))
     arm = scenario.arm_description
     assert np.all(q >= arm.joint_lower_rad) and np.all(q <= arm.joint_upper_rad)
@@ -222,7 +222,7 @@ def test_the_robot_ramped_down_after_the_kill_and_the_restart_continued_from_it(
     # kill (the one its telemetry reported when the new ground started; the ramp-down may
     # still be going on then, so later commands of it can follow before the packet lands).
     issued = guard[(guard[:, 1] > accepted[first_of_second - 1, 3]) &
-                   (guard[:, 1] <= t_restart)][:, 3:]
+                   (guard[:, 1] <= t_restart)][:, 4:]
     assert any(np.array_equal(accepted[first_of_second, 4:], row) for row in issued)
     assert "resuming from the robot's commanded pose" in fault_run["restart_log"]
     # No jump: from a second before the kill through the ramp-down, the restart and the
@@ -230,7 +230,7 @@ def test_the_robot_ramped_down_after_the_kill_and_the_restart_continued_from_it(
     window = guard[(guard[:, 1] > accepted[first_of_second - 1, 3] - 1.0) &
                    (guard[:, 1] < t_restart + 4.0)]
     assert len(window) >= 8, window
-    ratio = fd_limits_ratio(window[:, 3:], scenario.uplink.period_s,
+    ratio = fd_limits_ratio(window[:, 4:], scenario.uplink.period_s,
                             scenario.smoother.max_acceleration_rad_per_s2,
                             scenario.smoother.max_jerk_rad_per_s3)
     assert ratio.acceleration <= 1 + 1e-6 and ratio.jerk <= 1 + 1e-6, ratio

@@ -1,0 +1,270 @@
+"""The link fault matrix through real processes: one case per fault, each with its own ground
+process and its own relay, against one onboard process that runs through all of them.
+
+Buses (udpm, ttl=0, this host only): each ground process publishes on A; ``telesmooth
+link-relay`` forwards A → B with the case's faults (telemetry B → A unchanged); the onboard
+process listens on B. Every ground starts from the robot's commanded pose (its telemetry,
+``--resume-wait``), as after a restart, so the cases follow each other on one robot. The
+"outage" case kills its relay mid-run and starts a new one 2 s later (the link is down in
+between: those packets are gone). This test listens on A (what each ground sent) and on B
+(what the relay put on the onboard bus, in order, and the onboard telemetry).
+
+Checked, per case, from the onboard process's own logs and telemetry:
+
+* every packet the relay forwarded was examined by the onboard receiver (accepted, or dropped
+  as a duplicate or stale), none was lost between the bus and the receiver;
+* the accepted commands are exactly the oracle's: in arrival order on B, the packets newer
+  than every packet before them, each bit for bit what its ground sent;
+* without gaps (no fault, delay, duplicates) every accepted command reached the robot
+  unchanged, in order;
+* the fault really happened (the relay's counts).
+
+And over the whole run: every command that reached the robot is finite, within the joint
+limits, and the command sequence is within the FD acceleration and jerk limits (the ground
+is online-hard; the guard joins every gap through its limiter and ramps down between cases).
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import lcm
+import numpy as np
+import pytest
+
+from telesmooth.diagrams.channels import ONBOARD_JOINT_STATUS, TELEOP_JOINT_COMMAND
+from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.lcm_types import lcmt_onboard_joint_status, lcmt_teleop_joint_command
+from telesmooth.link.auth import generate_key_file
+from telesmooth.systems.collision_stop import STOP_OUTCOMES
+from telesmooth.systems.link_guard import fd_limits_ratio
+
+SCENARIO_TEXT = ("{haptic: {source: synthetic, synthetic: {duration_s: 5.0, hold_start_s: 0.5,"
+                 " hold_end_s: 0.5}}, settle_s: 0.0, smoother: {method: online-hard}}")
+GROUND_S = 6.0
+
+# name → (relay faults, the relay's count that must be > 0, gap-free)
+CASES = {
+    "none": ("{}", None, True),
+    "delay 1.5 s": ("{delay_s: 1.5}", None, True),
+    "jitter 0.2 s": ("{jitter_s: 0.2, seed: 2}", None, False),
+    "loss 30 %": ("{loss_probability: 0.3, seed: 1}", "lost", False),
+    "duplicates 50 %": ("{duplicate_probability: 0.5, seed: 3}", "duplicated", True),
+    "reorder 30 %": ("{reorder_probability: 0.3, reorder_delay_s: 0.3, seed: 4}", "reordered",
+                     False),
+    "outage 2 s": ("{}", None, False),
+    "everything": ("{delay_s: 0.5, jitter_s: 0.1, loss_probability: 0.1, "
+                   "duplicate_probability: 0.2, reorder_probability: 0.1, seed: 5}", "lost",
+                   False),
+}
+COUNT_FIELDS = ("accepted_count", "rejected_invalid_count", "rejected_auth_count",
+                "dropped_duplicate_count", "dropped_stale_count", "undecodable_count")
+
+
+def _read(path):
+    rows = Path(path).read_text().splitlines()
+    return np.array([[float(v) for v in row.split(",")] for row in rows[1:]])
+
+
+class _Process:
+    def __init__(self, args, log_path):
+        self.log_path = Path(log_path)
+        with open(self.log_path, "w") as log:
+            self.popen = subprocess.Popen(args, stdout=log, stderr=log, text=True)
+
+    def wait_for(self, text, timeout_s):
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if text in self.log_path.read_text():
+                return
+            if self.popen.poll() is not None:
+                break
+            time.sleep(0.05)
+        raise AssertionError(f"no {text!r} within {timeout_s} s: {self.log_path.read_text()}")
+
+    def stop(self, timeout_s=60):
+        """SIGINT, then the exit code (0 expected: both tools stop cleanly on it)."""
+        self.popen.send_signal(signal.SIGINT)
+        return self.popen.wait(timeout=timeout_s)
+
+
+class _Listener:
+    """This test's own view of both buses (lcm package, pumped in a thread)."""
+
+    def __init__(self, url_a, url_b):
+        self.sent = {}            # (session, seq) → positions, what the grounds sent on A
+        self.arrivals = []        # (session, seq) in arrival order on B
+        self.status = None        # the newest onboard telemetry
+        self._bus_a, self._bus_b = lcm.LCM(url_a), lcm.LCM(url_b)
+        for bus in (self._bus_a, self._bus_b):
+            bus.subscribe(TELEOP_JOINT_COMMAND, lambda c, d, bus=bus: self._command(bus, d)) \
+                .set_queue_capacity(10_000)
+        self._bus_b.subscribe(ONBOARD_JOINT_STATUS, self._status)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._pump, daemon=True)
+        self._thread.start()
+
+    def _command(self, bus, data):
+        msg = lcmt_teleop_joint_command.decode(data)
+        key = (msg.session_id, msg.seq)
+        if bus is self._bus_a:
+            self.sent[key] = np.asarray(msg.joint_position_smoothed)
+        else:
+            self.arrivals.append(key)
+
+    def _status(self, _channel, data):
+        self.status = lcmt_onboard_joint_status.decode(data)
+
+    def counts(self):
+        return {field: int(getattr(self.status, field)) for field in COUNT_FIELDS}
+
+    def _pump(self):
+        while not self._stop.is_set():
+            self._bus_a.handle_timeout(5)
+            self._bus_b.handle_timeout(5)
+
+    def close(self):
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
+@pytest.fixture(scope="module")
+def matrix(tmp_path_factory):
+    out = tmp_path_factory.mktemp("fault_matrix")
+    port = 7400 + os.getpid() % 90
+    url_a = f"udpm://239.255.76.67:{port}?ttl=0"
+    url_b = f"udpm://239.255.76.67:{port + 100}?ttl=0"
+    key_path = out / "uplink.key"
+    generate_key_file(key_path)
+    telesmooth = [sys.executable, "-m", "telesmooth.scripts.cli"]
+    common = ["--scenario-text", SCENARIO_TEXT, "--uplink-key", str(key_path)]
+    listener = _Listener(url_a, url_b)
+    processes = []
+
+    def start(args, name):
+        process = _Process(telesmooth + args, out / f"{name}.log")
+        processes.append(process)
+        return process
+
+    def relay(name, faults):
+        process = start(["link-relay", "--in-url", url_a, "--out-url", url_b, "--link", faults,
+                         "--report", str(out / f"{name}.json")], name)
+        process.wait_for("ready", 60)
+        return process
+
+    cases = {}
+    try:
+        onboard = start(["onboard", "--lcm-url", url_b, "--duration", "900", "--out", str(out)]
+                        + common, "onboard")
+        onboard.wait_for("onboard: listening", 180)
+        for index, (name, (faults, _, _)) in enumerate(CASES.items()):
+            before = listener.counts() if listener.status is not None else dict.fromkeys(
+                COUNT_FIELDS, 0)
+            arrivals_before = len(listener.arrivals)
+            relays = [relay(f"relay{index}", faults)]
+            ground = start(["ground", "--lcm-url", url_a, "--duration", str(GROUND_S),
+                            "--resume-wait", "5"] + common, f"ground{index}")
+            ground.wait_for("ground: publishing", 180)
+            if name.startswith("outage"):
+                time.sleep(2.0)
+                assert relays[0].stop() == 0           # the link goes down ...
+                time.sleep(2.0)
+                relays.append(relay(f"relay{index}b", faults))   # ... and comes back
+            assert ground.popen.wait(timeout=180) == 0, ground.log_path.read_text()
+            time.sleep(2.5)                            # the relay's queue drains (delay 1.5 s)
+            for process in relays:
+                assert process.stop() == 0, process.log_path.read_text()
+            time.sleep(1.0)                            # telemetry catches up
+            reports = [json.loads((out / f"relay{index}{suffix}.json").read_text())["uplink"]
+                       for suffix in ("", "b")[:len(relays)]]
+            sessions = {key[0] for key in listener.arrivals[arrivals_before:]}
+            cases[name] = dict(before=before, after=listener.counts(), reports=reports,
+                               sessions=sessions)
+        assert onboard.stop(timeout_s=120) == 0, onboard.log_path.read_text()
+    finally:
+        listener.close()
+        for process in processes:
+            if process.popen.poll() is None:
+                process.popen.kill()
+    accepted = _read(out / "onboard_commands.csv")        # count, session, seq, t, q…
+    guard = _read(out / "onboard_guard.csv")              # command, t, mode, outcome, q…
+    return dict(cases=cases, accepted=accepted, guard=guard, listener=listener,
+                scenario=load_scenario(scenario_text=SCENARIO_TEXT), out=out)
+
+
+def _oracle_accepted(arrivals):
+    """In arrival order, the packets newer than every packet before them."""
+    newest, accepted = None, []
+    for key in arrivals:
+        if newest is None or key > newest:
+            accepted.append(key)
+            newest = key
+    return accepted
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_every_forwarded_packet_was_examined_and_exactly_the_newer_ones_accepted(matrix, name):
+    case = matrix["cases"][name]
+    _, fault_count, gap_free = CASES[name]
+    delta = {field: case["after"][field] - case["before"][field] for field in COUNT_FIELDS}
+    forwarded = sum(report["forwarded"] for report in case["reports"])
+    relay = {field: sum(report[field] for report in case["reports"])
+             for field in ("received", "lost", "duplicated", "reordered")}
+    print(f"\n{name}: relay {relay}, forwarded {forwarded}; onboard accepted "
+          f"{delta['accepted_count']}, duplicate {delta['dropped_duplicate_count']}, stale "
+          f"{delta['dropped_stale_count']}")
+    # Every packet on the onboard bus reached the receiver: none lost in the subscriber.
+    assert forwarded == (delta["accepted_count"] + delta["dropped_duplicate_count"]
+                         + delta["dropped_stale_count"]), (name, delta, case["reports"])
+    assert delta["rejected_invalid_count"] == delta["rejected_auth_count"] == 0
+    assert delta["undecodable_count"] == 0
+    if fault_count is not None:
+        assert sum(report[fault_count] for report in case["reports"]) > 0, case["reports"]
+    # The accepted commands of this case are the oracle's, bit for bit what was sent.
+    listener, accepted = matrix["listener"], matrix["accepted"]
+    assert len(case["sessions"]) == 1, case["sessions"]
+    session = next(iter(case["sessions"]))
+    arrivals = [key for key in listener.arrivals if key[0] <= session]
+    expected = [key for key in _oracle_accepted(arrivals) if key[0] == session]
+    mine = accepted[accepted[:, 1] == session]
+    assert [(int(s), int(k)) for s, k in mine[:, 1:3]] == expected
+    assert len(expected) >= 10, name
+    for row in mine:
+        np.testing.assert_array_equal(row[4:], listener.sent[(int(row[1]), int(row[2]))])
+    if name == "outage 2 s":
+        assert len(case["reports"]) == 2          # a second relay after the outage
+        sent = [key for key in listener.sent if key[0] == session]
+        assert len(sent) - len(expected) >= 4     # the packets of the 2 s outage are gone
+    if gap_free:
+        # Nothing accepted was lost on the way to the robot: each accepted command was
+        # commanded unchanged, in order.
+        commanded = matrix["guard"][:, 4:]
+        position = 0
+        for row in mine:
+            matches = np.flatnonzero(np.all(commanded[position:] == row[4:], axis=1))
+            assert matches.size, (name, row[:4])
+            position += int(matches[0]) + 1
+
+
+def test_nothing_unsafe_reached_the_robot_in_any_case(matrix):
+    scenario = matrix["scenario"]
+    arm = scenario.arm_description
+    guard = matrix["guard"]
+    q = guard[:, 4:]
+    assert len(q) > 100
+    assert np.all(np.isfinite(q))
+    assert np.all(q >= arm.joint_lower_rad) and np.all(q <= arm.joint_upper_rad)
+    # No stop fell back to the hold, and so the whole command sequence of the run (eight
+    # cases, eight grounds, the ramp-downs between them) is within the FD limits.
+    outcomes = {STOP_OUTCOMES[int(v)] for v in guard[:, 3]}
+    assert outcomes <= {"none", "stop"}, outcomes
+    ratio = fd_limits_ratio(q, scenario.uplink.period_s,
+                            scenario.smoother.max_acceleration_rad_per_s2,
+                            scenario.smoother.max_jerk_rad_per_s3)
+    print(f"fault matrix through processes: {len(q)} commands, FD ratios {ratio}")
+    assert ratio.acceleration <= 1 + 1e-6 and ratio.jerk <= 1 + 1e-6, ratio
