@@ -38,7 +38,9 @@ consecutive states, and the measurement term as a single vectorised linear cost 
 
 from __future__ import annotations
 
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -166,6 +168,7 @@ def solve_offline_cks(
     block_size: int = 32,
     solver: str = "drake",
     banded_options: BandedIpOptions | None = None,
+    threads: int | None = None,
 ) -> OfflineCksResult:
     """Solves Offline-CKS for every joint (SPEC §2.5/§2.6).
 
@@ -191,6 +194,10 @@ def solve_offline_cks(
             interior point of :mod:`telesmooth.smoothing.banded_ip`; ``tolerance`` and
             ``block_size`` do not apply).
         banded_options: tolerances and linear-algebra route of the banded interior point.
+        threads: with ``solver="banded-ip"``, joints solved at once in threads (the joints are
+            independent, and LAPACK, the sparse products and numpy's loops release the GIL);
+            default min(joints, CPU count); 1 = one after the other. The result does not
+            depend on it.
 
     Returns:
         OfflineCksResult; check ``is_success``. Invalid input raises ValueError.
@@ -200,6 +207,8 @@ def solve_offline_cks(
     if solver not in OFFLINE_SOLVERS:
         raise ValueError(f"solver = {solver!r} must be one of {OFFLINE_SOLVERS}")
     banded_options = banded_options if banded_options is not None else BandedIpOptions()
+    if threads is not None:
+        threads = check_positive_int("threads", threads)
     z = check_trajectory("measurements", measurements, num_joints=model.num_joints,
                          joint_names=joint_names, min_samples=2)
     num_samples, num_joints = z.shape
@@ -225,14 +234,36 @@ def solve_offline_cks(
     solvers_used = []
     ladder = [float(tolerance)] + [tol for tol in TOLERANCE_LADDER if tol > tolerance]
     reached = []
+
+    def solve_banded(j):
+        """(problem, shift, y_rts, result, build s, solve s) of joint j by the banded IP."""
+        start = time.perf_counter()
+        problem = banded_problem(z[:, j], model, j, prior, q_start[j], acc[j], jerk[j],
+                                 vel[j], constraint, rest_at_end)
+        shift = np.array([q_start[j], 0.0, 0.0, 0.0])
+        y_rts = (reference[:, j] - shift).ravel()
+        built = time.perf_counter()
+        result = solve_banded_qp(*problem, y_rts, banded_options)
+        return problem, shift, y_rts, result, built - start, time.perf_counter() - built
+
+    def at_the_optimum(j):
+        """ckbs step 1: the unconstrained optimum meets every limit, so it is the optimum."""
+        rts_at_rest = not rest_at_end or not np.any(reference[-1, j, 1:])
+        return rts_at_rest and _limit_excess(model.from_scaled(reference[:, j]), q_start[j],
+                                             dt, acc[j], jerk[j], vel[j], constraint,
+                                             rest_at_end) == 0.0
+
+    presolved = {}
+    if solver == "banded-ip":
+        todo = [j for j in range(num_joints) if not at_the_optimum(j)]
+        workers = min(len(todo), threads or os.cpu_count() or 1)
+        if workers > 1:
+            with ThreadPoolExecutor(max_workers=workers) as pool:
+                presolved = dict(zip(todo, pool.map(solve_banded, todo)))
     for j in range(num_joints):
         infeasible.append(())
-        rts_states = model.from_scaled(reference[:, j])
-        rts_at_rest = not rest_at_end or not np.any(reference[-1, j, 1:])
-        if rts_at_rest and _limit_excess(rts_states, q_start[j], dt, acc[j], jerk[j], vel[j],
-                                         constraint, rest_at_end) == 0.0:
-            # ckbs step 1: the unconstrained optimum meets every limit, so it is the optimum.
-            states[:, j, :] = rts_states
+        if j not in presolved and at_the_optimum(j):
+            states[:, j, :] = model.from_scaled(reference[:, j])
             results.append("kSolutionFound")
             objective.append(0.0)
             solve_times.append(0.0)
@@ -257,18 +288,12 @@ def solve_offline_cks(
         else:
             fallback = None
         # The banded interior point: requested, or Clarabel failed on this joint.
-        start = time.perf_counter()
-        problem = banded_problem(z[:, j], model, j, prior, q_start[j], acc[j], jerk[j],
-                                 vel[j], constraint, rest_at_end)
-        shift = np.array([q_start[j], 0.0, 0.0, 0.0])
-        y_rts = (reference[:, j] - shift).ravel()
-        built = time.perf_counter()
-        banded = solve_banded_qp(*problem, y_rts, banded_options)
-        finished = time.perf_counter()
+        problem, shift, y_rts, banded, build_s, solve_s = (
+            presolved[j] if j in presolved else solve_banded(j))
         a, c = problem[0], problem[1]
         solvers_used.append(fallback or "banded-ip")
-        build_times.append(built - start + (solved["build_time"] if fallback else 0.0))
-        solve_times.append(finished - built)
+        build_times.append(build_s + (solved["build_time"] if fallback else 0.0))
+        solve_times.append(solve_s)
         if banded.converged:
             states[:, j, :] = model.from_scaled(banded.y.reshape(num_samples, 4) + shift)
             results.append("kSolutionFound")

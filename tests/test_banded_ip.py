@@ -197,3 +197,31 @@ def test_drake_falls_back_to_the_banded_solver_when_clarabel_fails():
         result.solver_name.endswith("banded-ip fallback")
     direct = solve_offline_cks(z, model, solver="banded-ip", **kwargs)
     np.testing.assert_array_equal(result.states, direct.states)
+
+
+def test_joints_in_threads_give_the_same_result_as_one_after_the_other():
+    z, model = _setup(0.25, num_samples=60, num_joints=3, seed=31)
+    kwargs = dict(max_acceleration=ACC, max_jerk=JERK, constraint="trajectory",
+                  solver="banded-ip")
+    serial = solve_offline_cks(z, model, threads=1, **kwargs)
+    threaded = solve_offline_cks(z, model, threads=3, **kwargs)
+    assert serial.is_success and threaded.is_success
+    assert np.count_nonzero(serial.solve_time_s) >= 2      # at least two joints were solved
+    np.testing.assert_array_equal(threaded.states, serial.states)
+    assert threaded.solution_results == serial.solution_results
+    with pytest.raises(ValueError, match="threads"):
+        solve_offline_cks(z, model, threads=0, **kwargs)
+
+
+def test_the_reported_measures_are_finite_when_converged():
+    z, model = _setup(0.25, seed=23)
+    problem = banded_problem(z[:, 0], model, 0, rest_prior(z[0], model), z[0, 0], ACC, JERK,
+                             np.inf, "trajectory", False)
+    result = solve_banded_qp(*problem, np.zeros(problem[0].shape[1]))
+    assert result.converged
+    assert 0.0 <= result.dual_residual <= BandedIpOptions().dual_tolerance
+    assert 0.0 <= result.gap <= BandedIpOptions().gap_tolerance
+    capped = solve_banded_qp(*problem, np.zeros(problem[0].shape[1]),
+                             BandedIpOptions(max_iterations=2))
+    assert not capped.converged and capped.status == "max_iterations"
+    assert np.isfinite(capped.dual_residual) and capped.dual_residual > 0.0
