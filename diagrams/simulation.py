@@ -223,7 +223,8 @@ def run_metrics(record: SimulationRecord) -> dict:
     deflection = record.q_link - record.q_motor
     return {
         "scenario": {"arm": scenario.arm, "haptic_source": scenario.haptic.source,
-                     "method": scenario.smoother.method},
+                     "method": scenario.smoother.method,
+                     "on_collision": scenario.fifo.on_collision},
         "duration_s": record.duration_s,
         "wall_time_s": record.wall_time_s,
         "realtime_factor": record.duration_s / max(record.wall_time_s, 1e-9),

@@ -192,13 +192,23 @@ def _add_scenario_arguments(p) -> None:
     p.add_argument("--scenario-name", default=None, help="entry of the file (default Defaults)")
     p.add_argument("--scenario-text", default=None,
                    help="YAML overrides, e.g. \"{arm: space_arm, smoother: {method: bmfls}}\"")
+    p.add_argument("--on-collision", choices=("hold", "stop"), default=None,
+                   help="what a pre-simulator collision does (the scenario's fifo.on_collision, "
+                        "default hold): 'hold' re-sends the last command (the paper), 'stop' "
+                        "brakes within the acceleration and jerk limits")
 
 
 def _load_scenario(args):
+    import dataclasses
+
     from telesmooth.diagrams.scenario import load_scenario
 
-    return load_scenario(filename=args.scenario, scenario_name=args.scenario_name,
-                         scenario_text=args.scenario_text)
+    scenario = load_scenario(filename=args.scenario, scenario_name=args.scenario_name,
+                             scenario_text=args.scenario_text)
+    if getattr(args, "on_collision", None) is not None:
+        scenario = dataclasses.replace(scenario, fifo=dataclasses.replace(
+            scenario.fifo, on_collision=args.on_collision))
+    return scenario
 
 
 def _add_simulate_parser(subparsers) -> None:

@@ -163,7 +163,8 @@ def _report_text(metrics: dict, figures) -> str:
         "# telesmooth simulate",
         "",
         f"Scenario: arm `{metrics['scenario']['arm']}`, operator "
-        f"`{metrics['scenario']['haptic_source']}`, smoother `{metrics['scenario']['method']}`. "
+        f"`{metrics['scenario']['haptic_source']}`, smoother `{metrics['scenario']['method']}`, "
+        f"on collision `{metrics['scenario']['on_collision']}`. "
         f"{metrics['duration_s']:.1f} s simulated in {metrics['wall_time_s']:.1f} s "
         f"({metrics['realtime_factor']:.1f}× real time), {metrics['num_packets']} packets.",
         "",

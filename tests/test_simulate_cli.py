@@ -59,3 +59,22 @@ def test_bad_scenario_text_exits_2_naming_the_key(tmp_path, capsys):
     assert code == 2
     assert "delay_s = 0.3" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def test_on_collision_flag_overrides_the_scenario(tmp_path):
+    from telesmooth.scripts.cli import _load_scenario, build_parser
+
+    parser = build_parser()
+    for command in ("simulate", "ground", "onboard", "compare", "experiment"):
+        args = parser.parse_args([command, "--on-collision", "stop"])
+        assert _load_scenario(args).fifo.on_collision == "stop", command
+        args = parser.parse_args([command])
+        assert _load_scenario(args).fifo.on_collision == "hold", command
+    with pytest.raises(SystemExit):
+        parser.parse_args(["simulate", "--on-collision", "brake"])
+    out = tmp_path / "stop"
+    assert main(["simulate", "--duration", "2", "--on-collision", "stop", "--out",
+                 str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["scenario"]["on_collision"] == "stop"
+    assert "on collision `stop`" in (out / "report.md").read_text()
