@@ -100,6 +100,10 @@ def _add_smooth_parser(subparsers) -> None:
     p.set_defaults(handler=run_smooth)
 
 
+def _planar_fk(planar_forward_kinematics, link_lengths, q):
+    return planar_forward_kinematics(q, link_lengths)
+
+
 def run_smooth(args) -> int:
     trajectory = read_joint_csv(args.input, expected_dt_s=args.dt)
     names = list(trajectory.joint_names)
@@ -137,10 +141,12 @@ def run_smooth(args) -> int:
     if args.metrics is not None:
         forward_kinematics = None
         if args.link_lengths is not None:
+            from functools import partial
+
             from telesmooth.arms.planar import planar_forward_kinematics
 
-            def forward_kinematics(q):
-                return planar_forward_kinematics(q, tuple(link_lengths))
+            forward_kinematics = partial(_planar_fk, planar_forward_kinematics,
+                                         tuple(link_lengths))
         metrics = smoothing_metrics(
             smoothed_positions=result.positions,
             original_positions=trajectory.positions,
