@@ -45,6 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sparse
+from scipy.linalg import LinAlgError
 from pydrake.solvers import (
     ClarabelSolver,
     MathematicalProgram,
@@ -52,7 +53,7 @@ from pydrake.solvers import (
     SolverOptions,
 )
 
-from telesmooth.smoothing.banded_ip import BandedIpOptions, solve_banded_qp
+from telesmooth.smoothing.banded_ip import BandedIpOptions, BandedQp
 from telesmooth.smoothing.kalman import GaussianPrior, rest_prior, rts_smoother
 from telesmooth.smoothing.model import (
     SCALED_TRANSITION,
@@ -225,7 +226,6 @@ def solve_offline_cks(
         raise ValueError(f"start_position must be {num_joints} finite values; got {q_start!r}")
 
     dt = model.dt_s
-    reference = model.to_scaled(rts_smoother(z, model, prior).mean)  # Y_RTS, (N, J, 4)
     states = np.empty((num_samples, num_joints, 4))
     results, objective, solve_times, build_times, infeasible = [], [], [], [], []
     success = True
@@ -235,42 +235,62 @@ def solve_offline_cks(
     ladder = [float(tolerance)] + [tol for tol in TOLERANCE_LADDER if tol > tolerance]
     reached = []
 
-    def solve_banded(j):
-        """(problem, shift, y_rts, result, build s, solve s) of joint j by the banded IP."""
+    def meets_the_limits(joint_states, j):
+        return _limit_excess(joint_states, q_start[j], dt, acc[j], jerk[j], vel[j],
+                             constraint, rest_at_end) == 0.0
+
+    def solve_banded(j) -> dict:
+        """Joint j by the banded IP, from the optimum without limits (the RTS smoother's,
+        computed with the same banded factorisation; with ``rest_at_end`` the rest is in it).
+        ckbs step 1: when that optimum meets every limit it is the optimum (result None)."""
         start = time.perf_counter()
         problem = banded_problem(z[:, j], model, j, prior, q_start[j], acc[j], jerk[j],
                                  vel[j], constraint, rest_at_end)
         shift = np.array([q_start[j], 0.0, 0.0, 0.0])
-        y_rts = (reference[:, j] - shift).ravel()
+        qp = BandedQp(*problem, banded_options)
         built = time.perf_counter()
-        result = solve_banded_qp(*problem, y_rts, banded_options)
-        return problem, shift, y_rts, result, built - start, time.perf_counter() - built
-
-    def at_the_optimum(j):
-        """ckbs step 1: the unconstrained optimum meets every limit, so it is the optimum."""
-        rts_at_rest = not rest_at_end or not np.any(reference[-1, j, 1:])
-        return rts_at_rest and _limit_excess(model.from_scaled(reference[:, j]), q_start[j],
-                                             dt, acc[j], jerk[j], vel[j], constraint,
-                                             rest_at_end) == 0.0
+        try:
+            y_free = qp.unconstrained_optimum()
+        except (LinAlgError, ValueError):
+            y_free = np.zeros(4 * num_samples)   # the interior point reports the failure
+        free_states = model.from_scaled(y_free.reshape(num_samples, 4) + shift)
+        result = None
+        if not (np.all(np.isfinite(free_states)) and meets_the_limits(free_states, j)
+                and np.any(y_free)):
+            result = qp.run(y_free)
+        a, c = problem[0], problem[1]
+        if result is None:
+            joint_states, cost = free_states, 0.0
+        elif result.converged:
+            joint_states = model.from_scaled(result.y.reshape(num_samples, 4) + shift)
+            cost = 0.5 * float(np.sum((a @ result.y - c) ** 2) - np.sum((a @ y_free - c) ** 2))
+        else:
+            joint_states, cost = np.full((num_samples, 4), np.nan), np.nan
+        return dict(result=result, states=joint_states, objective=cost,
+                    build_s=built - start, solve_s=time.perf_counter() - built)
 
     presolved = {}
     if solver == "banded-ip":
-        todo = [j for j in range(num_joints) if not at_the_optimum(j)]
-        workers = min(len(todo), threads or os.cpu_count() or 1)
+        workers = min(num_joints, threads or os.cpu_count() or 1)
         if workers > 1:
             with ThreadPoolExecutor(max_workers=workers) as pool:
-                presolved = dict(zip(todo, pool.map(solve_banded, todo)))
+                presolved = dict(enumerate(pool.map(solve_banded, range(num_joints))))
+    else:
+        reference = model.to_scaled(rts_smoother(z, model, prior).mean)  # Y_RTS, (N, J, 4)
     for j in range(num_joints):
         infeasible.append(())
-        if j not in presolved and at_the_optimum(j):
-            states[:, j, :] = model.from_scaled(reference[:, j])
-            results.append("kSolutionFound")
-            objective.append(0.0)
-            solve_times.append(0.0)
-            build_times.append(0.0)
-            reached.append(0.0)
-            continue
         if solver == "drake":
+            rts_states = model.from_scaled(reference[:, j])
+            rts_at_rest = not rest_at_end or not np.any(reference[-1, j, 1:])
+            if rts_at_rest and meets_the_limits(rts_states, j):
+                # ckbs step 1: the unconstrained optimum meets every limit: the optimum.
+                states[:, j, :] = rts_states
+                results.append("kSolutionFound")
+                objective.append(0.0)
+                solve_times.append(0.0)
+                build_times.append(0.0)
+                reached.append(0.0)
+                continue
             solved = _solve_joint_drake(
                 z[:, j], reference[:, j], model, j, names[j], prior, q_start[j], acc[j],
                 jerk[j], vel[j], constraint, rest_at_end, block_size, clarabel, options, ladder)
@@ -288,23 +308,19 @@ def solve_offline_cks(
         else:
             fallback = None
         # The banded interior point: requested, or Clarabel failed on this joint.
-        problem, shift, y_rts, banded, build_s, solve_s = (
-            presolved[j] if j in presolved else solve_banded(j))
-        a, c = problem[0], problem[1]
+        banded = presolved[j] if j in presolved else solve_banded(j)
+        result = banded["result"]
         solvers_used.append(fallback or "banded-ip")
-        build_times.append(build_s + (solved["build_time"] if fallback else 0.0))
-        solve_times.append(solve_s)
-        if banded.converged:
-            states[:, j, :] = model.from_scaled(banded.y.reshape(num_samples, 4) + shift)
+        build_times.append(banded["build_s"] + (solved["build_time"] if fallback else 0.0))
+        solve_times.append(banded["solve_s"])
+        states[:, j, :] = banded["states"]
+        objective.append(banded["objective"])
+        if result is None or result.converged:
             results.append("kSolutionFound")
-            objective.append(0.5 * float(np.sum((a @ banded.y - c) ** 2)
-                                         - np.sum((a @ y_rts - c) ** 2)))
-            reached.append(banded_options.primal_tolerance)
+            reached.append(0.0 if result is None else banded_options.primal_tolerance)
         else:
             success = False
-            states[:, j, :] = np.nan
-            results.append(f"banded-ip: {banded.status}")
-            objective.append(np.nan)
+            results.append(f"banded-ip: {result.status}")
             reached.append(np.nan)
             infeasible[-1] = solved["infeasible"] if fallback else ()
     return OfflineCksResult(

@@ -225,3 +225,28 @@ def test_the_reported_measures_are_finite_when_converged():
                              BandedIpOptions(max_iterations=2))
     assert not capped.converged and capped.status == "max_iterations"
     assert np.isfinite(capped.dual_residual) and capped.dual_residual > 0.0
+
+
+@pytest.mark.parametrize("dt", [0.25, 0.01])
+def test_unconstrained_optimum_is_the_rts_smoother(dt):
+    """The banded route's start (and ckbs step 1 answer): the RTS means, without RTS."""
+    from telesmooth.smoothing.banded_ip import BandedQp
+
+    z, model = _setup(dt, num_samples=200, num_joints=1, seed=27)
+    prior = rest_prior(z[0], model)
+    problem = banded_problem(z[:, 0], model, 0, prior, z[0, 0], ACC, JERK, np.inf,
+                             "trajectory", False)
+    qp = BandedQp(*problem, BandedIpOptions())
+    states = model.from_scaled(qp.unconstrained_optimum().reshape(-1, 4) + [z[0, 0], 0, 0, 0])
+    rts = rts_smoother(z, model, prior).mean[:, 0]
+    _assert_same_states(states, rts, dt, atol=1e-8 if dt == 0.25 else 1e-6)
+
+
+def test_a_joint_whose_unconstrained_optimum_meets_the_limits_is_returned_as_is():
+    z, model = _setup(0.25, num_samples=60, num_joints=2, seed=29)
+    loose = solve_offline_cks(z, model, max_acceleration=1e3, max_jerk=1e3, solver="banded-ip")
+    assert loose.is_success and loose.solution_results == ("kSolutionFound",) * 2
+    np.testing.assert_array_equal(loose.objective, 0.0)
+    rts = rts_smoother(z, model, rest_prior(z[0], model)).mean
+    _assert_same_states(loose.states[:, 0], rts[:, 0], 0.25, atol=1e-8)
+    _assert_same_states(loose.states[:, 1], rts[:, 1], 0.25, atol=1e-8)
