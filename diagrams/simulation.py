@@ -43,6 +43,9 @@ class SimulationRecord:
         tick_t_s, q_delayed, holding, sigma: at each 4 Hz tick (logged before the tick's
             update, i.e. the values of the tick at that time).
         tracker_t_s, q_link, q_motor, tool_position_m: robot telemetry, 100 Hz.
+        stop_status, braking_distance: with ``fifo.on_collision = "stop"``, at each tick:
+            the index in ``STOP_OUTCOMES`` of the last collision stop plan and its braking
+            distance per joint, rad, (T, J); None with the hold.
     """
 
     scenario: Scenario
@@ -64,6 +67,8 @@ class SimulationRecord:
     q_link: np.ndarray
     q_motor: np.ndarray
     tool_position_m: np.ndarray
+    stop_status: np.ndarray | None = None
+    braking_distance: np.ndarray | None = None
 
     @property
     def num_joints(self) -> int:
@@ -169,7 +174,29 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
         tracker_t_s=log("q_link").sample_times().copy(), q_link=log("q_link").data().T.copy(),
         q_motor=log("q_motor").data().T.copy(),
         tool_position_m=log("position_measured").data().T.copy(),
+        stop_status=(log("stop_status").data()[0].copy() if "stop_status" in handles.logs
+                     else None),
+        braking_distance=(log("braking_distance").data().T.copy()
+                          if "braking_distance" in handles.logs else None),
     )
+
+
+def _collision_stops(record: SimulationRecord) -> dict | None:
+    """With ``on_collision = "stop"``: how many stop plans of each outcome were made (a plan
+    is counted where the logged outcome or braking distance changes) and the largest braking
+    distance per joint, rad; None with the hold."""
+    if record.stop_status is None:
+        return None
+    from telesmooth.systems.collision_stop import STOP_OUTCOMES
+
+    status = record.stop_status.astype(int)
+    changed = np.r_[status[:1] != 0, (np.diff(status) != 0)
+                    | np.any(np.diff(record.braking_distance, axis=0) != 0, axis=1)]
+    plans = status[changed & (status != 0)]
+    return {"plans": {name: int(np.count_nonzero(plans == k))
+                      for k, name in enumerate(STOP_OUTCOMES) if k != 0},
+            "max_braking_distance_rad": np.max(np.abs(record.braking_distance), axis=0,
+                                               initial=0.0).tolist()}
 
 
 def sample_at(times, values, at):
@@ -230,6 +257,7 @@ def run_metrics(record: SimulationRecord) -> dict:
         "realtime_factor": record.duration_s / max(record.wall_time_s, 1e-9),
         "num_packets": int(record.packet_seq.size),
         "collision_ticks": int(np.count_nonzero(record.holding > 0.5)),
+        "collision_stops": _collision_stops(record),
         "min_distance_m": float(np.min(record.min_distance_m)),
         "final_sigma": record.sigma[-1].tolist() if record.sigma.size else None,
         "commands": commands,

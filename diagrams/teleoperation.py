@@ -372,6 +372,11 @@ def add_ground_loggers(builder, ground: GroundHandles, scenario: Scenario) -> di
         "q_delayed": LogVectorOutput(ground.fifo.get_q_delayed_output_port(), builder, tick),
         "holding": LogVectorOutput(ground.fifo.get_holding_output_port(), builder, tick),
         "sigma": LogVectorOutput(ground.smoother.get_sigma_output_port(), builder, tick),
+        **({} if scenario.fifo.on_collision != "stop" else {
+            "stop_status": LogVectorOutput(ground.fifo.get_stop_status_output_port(), builder,
+                                           tick),
+            "braking_distance": LogVectorOutput(
+                ground.fifo.get_braking_distance_output_port(), builder, tick)}),
     }
 
 

@@ -191,12 +191,22 @@ def _report_text(metrics: dict, figures) -> str:
         f"operator: {1000 * tracking['chain_error_m']['mean']:.2f} / "
         f"{1000 * tracking['chain_error_m']['max']:.2f} mm. Ticks on collision hold: "
         f"{metrics['collision_ticks']}; smallest pre-simulator distance "
-        f"{1000 * metrics['min_distance_m']:.1f} mm.",
+        f"{1000 * metrics['min_distance_m']:.1f} mm."
+        + _stops_text(metrics.get("collision_stops")),
         "",
     ]
     for title, name in figures:
         lines += [f"## {title}", "", f"![{title}]({name})", ""]
     return "\n".join(lines)
+
+
+def _stops_text(stops) -> str:
+    if stops is None:
+        return ""
+    plans = ", ".join(f"{count} {name}" for name, count in stops["plans"].items() if count)
+    largest = max(stops["max_braking_distance_rad"], default=0.0)
+    return (f" Collision stops planned (jerk-limited, `--on-collision stop`): "
+            f"{plans or 'none'}; largest braking distance {largest:.4f} rad.")
 
 
 def write_simulation_report(out_dir, scenario, *, duration_s=None, meshcat_html=False,

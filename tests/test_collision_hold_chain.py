@@ -280,3 +280,19 @@ def test_stop_packets_go_up_the_link_marked_hold(stop_scenario, stop_run):
         if seq < stop_run.q_sent.shape[0]:
             np.testing.assert_array_equal(message.joint_position_smoothed, stop_run.q_sent[seq])
     assert set(range(k0, release)) <= set(by_seq)
+
+
+def test_the_simulation_record_and_metrics_report_the_stop(stop_scenario, stop_run, record):
+    from telesmooth.diagrams.simulation import run_metrics
+
+    stop_record = simulate(stop_scenario, duration_s=DURATION_S)
+    common = min(len(stop_record.q_sent), len(stop_run.q_sent))
+    assert common >= len(stop_run.q_sent) - 1
+    np.testing.assert_array_equal(stop_record.q_sent[:common], stop_run.q_sent[:common])
+    assert STOP_OUTCOMES[int(stop_record.stop_status[-1])] == "stop"
+    stops = run_metrics(stop_record)["collision_stops"]
+    assert stops["plans"]["stop"] == 1 and sum(stops["plans"].values()) == 1
+    np.testing.assert_array_equal(stops["max_braking_distance_rad"],
+                                  np.abs(stop_run.braking_distance))
+    # With the paper's hold there is nothing to report.
+    assert record.stop_status is None and run_metrics(record)["collision_stops"] is None
