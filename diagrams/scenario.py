@@ -300,12 +300,12 @@ def load_scenario(*, filename=None, scenario_name: str | None = None,
         text = path.read_text()
     except OSError as error:
         raise ValueError(f"scenario file {path}: cannot read ({error.strerror})") from None
-    scenarios = load_yaml_text(text)
+    scenarios = load_yaml_text(text, source=f"scenario file {path}")
     name = scenario_name or "Defaults"
     if name not in scenarios:
         raise ValueError(
             f"scenario_name = {name!r} is not in {path}; it has {sorted(scenarios)}")
     data = scenarios[name] or {}
     if scenario_text:
-        data = merge_data(data, load_yaml_text(scenario_text))
+        data = merge_data(data, load_yaml_text(scenario_text, source="scenario_text"))
     return config_from_data(Scenario, data, path="scenario")

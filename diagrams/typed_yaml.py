@@ -15,18 +15,31 @@ import types
 import typing
 from collections.abc import Mapping
 
+import yaml
 from pydrake.common.yaml import yaml_load_data
 
 __all__ = ["config_from_data", "load_yaml_text", "merge_data"]
 
 
-def load_yaml_text(text: str) -> dict:
-    """Parses YAML text into plain data (a mapping at the top)."""
-    data = yaml_load_data(text)
+def load_yaml_text(text: str, source: str = "YAML") -> dict:
+    """Parses YAML text into plain data (a mapping at the top).
+
+    Raises:
+        ValueError: a syntax error (naming ``source``, the line and the column) or a top
+            level that is not a mapping.
+    """
+    try:
+        data = yaml_load_data(text)
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        where = "" if mark is None else f" at line {mark.line + 1}, column {mark.column + 1}"
+        problem = getattr(error, "problem", None) or str(error).splitlines()[0]
+        raise ValueError(f"{source}: not valid YAML{where}: {problem}") from None
     if data is None:
         return {}
     if not isinstance(data, Mapping):
-        raise ValueError(f"YAML must be a mapping at the top level; got {type(data).__name__}")
+        raise ValueError(f"{source} must be a mapping at the top level; got "
+                         f"{type(data).__name__}")
     return dict(data)
 
 

@@ -125,6 +125,11 @@ def test_lcm_split_sends_the_same_commands_as_the_single_process(tmp_path):
     ("{uplink: {period_s: 0.5}}", r"share one period"),
     ("{initial_position_rad: [0.0, 0.0, 9.0]}", r"initial_position_rad\['wrist'\] = 9.0"),
     ("{settle_s: yes}", r"scenario.settle_s = True must be a number"),
+    ("{arm: [", r"scenario_text: not valid YAML at line 1, column 8"),
+    ("[1, 2]", r"scenario_text must be a mapping at the top level; got list"),
+    ("{settle_s: .nan}", r"settle_s = nan"),
+    ("{fifo: {delay_s: .inf}}", r"delay_s = inf"),
+    ("{smoother: {max_jerk_rad_per_s3: [0.1, .nan, 0.1]}}", r"max_jerk_rad_per_s3\[1\] = nan"),
 ])
 def test_scenario_errors_name_the_key_and_value(text, match):
     with pytest.raises(ValueError, match=match):
@@ -134,6 +139,24 @@ def test_scenario_errors_name_the_key_and_value(text, match):
 def test_unknown_scenario_name_lists_the_known_ones():
     with pytest.raises(ValueError, match=r"'Nope' is not in .*\['Defaults', 'OneOfEverything'\]"):
         load_scenario(scenario_name="Nope")
+
+
+def test_scenario_file_errors_name_the_file(tmp_path):
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("Defaults:\n  arm: [space_arm\n")
+    with pytest.raises(ValueError, match=r"scenario file .*broken.yaml: not valid YAML at line"):
+        load_scenario(filename=broken)
+    with pytest.raises(ValueError, match=r"scenario file .*missing.yaml: cannot read"):
+        load_scenario(filename=tmp_path / "missing.yaml")
+
+
+def test_yaml_syntax_error_exits_2_without_a_traceback(tmp_path, capsys):
+    from telesmooth.scripts.cli import main
+
+    assert main(["simulate", "--scenario-text", "{arm: [", "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert "not valid YAML at line 1, column 8" in err and "Traceback" not in err
+    assert not (tmp_path / "x").exists()
 
 
 def test_defaults_scenario_is_the_dataclass_default():
