@@ -29,6 +29,7 @@ from telesmooth.arms.description import AIR_BEARING_ARM_3DOF, SPACE_ARM_6DOF, Ar
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_3r_inverse_kinematics
 from telesmooth.arms.workspace import AIR_BEARING_WORKSPACE, SPACE_ARM_WORKSPACE, Workspace
 from telesmooth.datasets.haptic_recording import (
+    PLANAR_POSE_NAMES,
     SPATIAL_POSE_NAMES,
     HapticRecording,
     read_haptic_csv,
@@ -253,6 +254,15 @@ def make_haptic_recording(scenario: Scenario) -> HapticRecording | None:
         path = pathlib.Path(haptic.file)
         reader = read_haptic_npz if path.suffix.lower() == ".npz" else read_haptic_csv
         recording = reader(path)
+        # The pose names carry the units: a planar pose, or (for the 6-DOF arm) a spatial one.
+        allowed = [PLANAR_POSE_NAMES] + ([SPATIAL_POSE_NAMES] if scenario.arm == "space_arm"
+                                         else [])
+        if tuple(recording.pose_names) not in allowed:
+            raise ValueError(
+                f"haptic.file = {str(path)!r}: the pose columns {list(recording.pose_names)} "
+                f"are not a pose of the arm {scenario.arm!r}; expected "
+                + " or ".join(str(list(names)) for names in allowed)
+                + " (metres and radians)")
     if scenario.arm == "space_arm" and recording.num_pose == 3:
         recording = HapticRecording(
             t_s=recording.t_s, pose=planar_pose_to_space_arm(recording.pose),

@@ -161,3 +161,31 @@ def test_yaml_syntax_error_exits_2_without_a_traceback(tmp_path, capsys):
 
 def test_defaults_scenario_is_the_dataclass_default():
     assert load_scenario() == Scenario()
+
+
+def test_a_haptic_file_in_other_units_or_for_another_arm_is_named(tmp_path):
+    from telesmooth.diagrams.scenario import make_haptic_recording
+
+    def write(name, header, row):
+        path = tmp_path / name
+        lines = [",".join(["t", *header])] + [",".join(str(v) for v in [0.01 * k, *row])
+                                               for k in range(5)]
+        path.write_text("\n".join(lines) + "\n")
+        return path
+
+    good = write("good.csv", ["x_m", "y_m", "phi_rad"], [0.8, 0.1, 0.0])
+    recording = make_haptic_recording(load_scenario(
+        scenario_text=f"{{haptic: {{source: file, file: '{good}'}}}}"))
+    assert recording.pose.shape == (5, 3)
+    millimetres = write("mm.csv", ["x_mm", "y_mm", "phi_rad"], [800.0, 100.0, 0.0])
+    with pytest.raises(ValueError, match=r"haptic.file = '.*mm.csv': the pose columns "
+                                         r"\['x_mm', 'y_mm', 'phi_rad'\] are not a pose of the "
+                                         r"arm 'air_bearing_arm'; expected \['x_m', 'y_m', "
+                                         r"'phi_rad'\] \(metres and radians\)"):
+        make_haptic_recording(load_scenario(
+            scenario_text=f"{{haptic: {{source: file, file: '{millimetres}'}}}}"))
+    spatial = write("6dof.csv", ["x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad"],
+                    [0.8, 0.1, 0.0, 0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"6dof.csv.*not a pose of the arm 'air_bearing_arm'"):
+        make_haptic_recording(load_scenario(
+            scenario_text=f"{{haptic: {{source: file, file: '{spatial}'}}}}"))

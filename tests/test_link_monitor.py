@@ -86,3 +86,58 @@ def test_config_errors_name_the_field():
         LinkMonitorConfig(max_unacknowledged=-1)
     with pytest.raises(ValueError, match="telemetry_timeout_s"):
         LinkMonitorConfig(telemetry_timeout_s=0.0)
+
+
+def _status(q):
+    from telesmooth.lcm_types import lcmt_onboard_joint_status
+
+    msg = lcmt_onboard_joint_status()
+    msg.num_joints = len(q)
+    msg.joint_position_link = list(q)
+    msg.joint_position_motor = list(q)
+    msg.joint_position_commanded = list(q)
+    return msg.encode()
+
+
+def test_a_restarted_ground_takes_only_valid_telemetry_as_the_robot_pose():
+    """processes.robot_commanded_pose: garbage, another type, NaN, a wrong joint count and a
+    pose beyond the joint limits on ONBOARD_JOINT_STATUS are skipped; the valid pose is taken;
+    with no valid telemetry it gives None (the ground then starts from the scenario)."""
+    import os
+    import threading
+    import time
+
+    import lcm
+
+    from telesmooth.diagrams.channels import ONBOARD_JOINT_STATUS
+    from telesmooth.diagrams.scenario import load_scenario
+    from telesmooth.scripts.processes import robot_commanded_pose
+
+    scenario = load_scenario()
+    arm = scenario.arm_description
+    url = f"udpm://239.255.76.67:{7300 + os.getpid() % 90}?ttl=0"
+    valid = 0.5 * (arm.joint_lower_rad + arm.joint_upper_rad) + 0.01
+    beyond = np.array(arm.joint_upper_rad, dtype=float) + 0.1
+    bad = [b"garbage", b"\x00" * 40, _status([np.nan] * arm.num_joints),
+           _status([0.1] * (arm.num_joints + 1)), _status(beyond)]
+
+    def publish(packets, stop):
+        bus = lcm.LCM(url)
+        while not stop.is_set():
+            for data in packets:
+                bus.publish(ONBOARD_JOINT_STATUS, data)
+                time.sleep(0.01)
+
+    for packets, expected in ((bad, None), (bad + [_status(valid)], valid)):
+        stop = threading.Event()
+        thread = threading.Thread(target=publish, args=(packets, stop), daemon=True)
+        thread.start()
+        try:
+            pose = robot_commanded_pose(url, scenario, wait_s=1.0)
+        finally:
+            stop.set()
+            thread.join(timeout=5)
+        if expected is None:
+            assert pose is None
+        else:
+            np.testing.assert_array_equal(pose, expected)
