@@ -454,3 +454,22 @@ def test_bench_writes_its_figures_and_their_ratios(tmp_path, capsys):
             r["online_cks_us_per_tick"] / r["ruckig_us_per_tick"])
     assert "Online-CKS / Ruckig" in (tmp_path / "bench_core.md").read_text()
     assert "Online-CKS / Ruckig" in captured.out
+
+
+def test_a_solver_that_gives_up_exits_2_naming_the_joints_and_writes_nothing(
+        tmp_path, capsys, input_csv, monkeypatch):
+    # The banded interior point capped at one Newton step cannot converge: the failure is
+    # reported per joint, and no partial output is written.
+    import telesmooth.smoothing.offline as offline
+    from telesmooth.smoothing.banded_ip import BandedIpOptions
+
+    monkeypatch.setattr(offline, "BandedIpOptions",
+                        lambda: BandedIpOptions(max_iterations=1))
+    path, _, _ = input_csv
+    out = tmp_path / "never.csv"
+    status, _, stderr = run_cli(capsys, path, "-o", out, "--method", "offline-cks",
+                                "--solver", "banded-ip", *LIMITS)
+    assert status == 2
+    assert "Offline-CKS failed" in stderr and "banded-ip: max_iterations" in stderr
+    assert len(stderr.strip().splitlines()) == 1
+    assert not out.exists()
