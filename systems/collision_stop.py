@@ -393,7 +393,8 @@ def finite_smoother_limits(smoother_config, joint_names, *, purpose: str) -> dic
 
 def MakeCollisionStopPlanner(*, period_s: float, smoother_config, arm, collision_model,
                              safety_margin_m: float, max_velocity=None) -> CollisionStopPlanner:
-    """The planner of the ground station: the smoother's limits, the pre-simulator's check.
+    """The planner of the ground station: the smoother's limits, the pre-simulator's check,
+    and the rounding tolerance :data:`STOPPABLE_ROUNDING_TOLERANCE`.
 
     Args:
         period_s: The uplink period, s.
@@ -416,4 +417,8 @@ def MakeCollisionStopPlanner(*, period_s: float, smoother_config, arm, collision
     return CollisionStopPlanner(
         dt_s=period_s, max_acceleration=limits["max_acceleration_rad_per_s2"],
         max_jerk=limits["max_jerk_rad_per_s3"], max_velocity=max_velocity,
-        pose_is_safe=check, joint_names=names)
+        pose_is_safe=check, joint_names=names,
+        # A sent stream the online-hard limiter kept inside the stoppable set can land a few
+        # ulps outside it when its FD state is recomputed from the sent floats; that is not
+        # a reason to fall back to the hold's velocity step (the onboard guard does the same).
+        rounding_tolerance=STOPPABLE_ROUNDING_TOLERANCE)

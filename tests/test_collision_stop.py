@@ -370,3 +370,40 @@ def test_rounding_tolerance_plans_from_the_nudged_history_and_is_validated():
             CollisionStopPlanner(dt_s=DT, max_acceleration=A_MAX, max_jerk=J_MAX,
                                  pose_is_safe=always_safe, joint_names=JOINTS,
                                  rounding_tolerance=bad)
+
+
+def test_the_ground_planner_treats_rounding_like_the_onboard_guard():
+    # MakeCollisionStopPlanner (the ground FIFO's) plans from the nudged history: a limiter
+    # at its limits, whose recomputed FD state lands on the boundary of S, gets the same
+    # stop as the exact planner from the nudged history, never the hold's velocity step
+    # where only rounding is at fault.
+    from telesmooth.arms.planar import AIR_BEARING_ARM
+    from telesmooth.smoothing.online_hard import OnlineHardLimiter
+    from telesmooth.systems.collision_stop import nudge_into_stoppable_set
+
+    class FarAway:
+        def query(self, q):
+            return _FakeCollisionModel._Query(10.0)
+
+    config = ReducedQSmootherConfig(max_acceleration_rad_per_s2=A_MAX,
+                                    max_jerk_rad_per_s3=J_MAX)
+    ground = MakeCollisionStopPlanner(period_s=DT, smoother_config=config, arm=AIR_BEARING_ARM,
+                                      collision_model=FarAway(), safety_margin_m=0.02)
+    names = tuple(AIR_BEARING_ARM.joint_names)
+    exact = CollisionStopPlanner(dt_s=DT, max_acceleration=A_MAX, max_jerk=J_MAX,
+                                 pose_is_safe=always_safe, joint_names=names)
+    limiter = OnlineHardLimiter(dt_s=DT, max_acceleration=A_MAX, max_jerk=J_MAX,
+                                q_start=[0.0, 0.0, 0.0])
+    sent, rescued = [np.zeros(3)] * 3, 0
+    for tick in range(120):
+        target = [0.5, -0.5, 0.5] if (tick // 20) % 2 == 0 else [-0.5, 0.5, -0.5]
+        sent.append(limiter.step(target))
+        history = np.array(sent[-3:])
+        plan = ground.plan(history, max_ticks=400)
+        oracle = exact.plan(nudge_into_stoppable_set(history, limiter.stoppable_sets, DT),
+                            max_ticks=400)
+        assert plan.outcome == oracle.outcome
+        np.testing.assert_array_equal(plan.commands, oracle.commands)
+        rescued += (exact.plan(history, max_ticks=400).outcome == "hold-not-stoppable"
+                    and plan.is_stop)
+    assert rescued > 0
