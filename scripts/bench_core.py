@@ -78,6 +78,7 @@ def bench_offline(sizes, repeat, max_drake_n=10_000):
                                               solver=solver), reps)
                 row[f"{key}_s"] = seconds
                 row[f"{key}_over_rts"] = seconds / rts_s
+                row[f"{key}_us_per_sample"] = 1e6 * seconds / n   # linear growth: constant
                 row[f"{key}_success"] = bool(result.is_success)
                 row[f"{key}_solver"] = result.solver_name
                 row[f"{key}_positions"] = result.states[:, :, 0]
@@ -215,8 +216,8 @@ def _table(offline, online, simulation=()) -> str:
     lines = ["Offline-CKS, 6 joints (wall time incl. build; best of repeats); drake = "
              "MathematicalProgram + Clarabel, banded-ip = the banded interior point", "",
              "| N | RTS pass [s] | mode | drake [s] | drake / RTS | banded-ip [s] | "
-             "banded-ip / RTS | drake / banded-ip | max |Δq| [rad] |",
-             "|---:|---:|---|---:|---:|---:|---:|---:|---:|"]
+             "banded-ip / RTS | drake / banded-ip | banded-ip [µs/sample] | max |Δq| [rad] |",
+             "|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
 
     def cell(row, key, fmt):
         return fmt.format(row[key]) if key in row else "–"
@@ -230,6 +231,7 @@ def _table(offline, online, simulation=()) -> str:
                 f"{cell(r, f'{mode}_banded_ip_s', '{:.3f}')} | "
                 f"{cell(r, f'{mode}_banded_ip_over_rts', '{:.1f}')} | "
                 f"{cell(r, f'{mode}_drake_over_banded_ip', '{:.1f}')} | "
+                f"{cell(r, f'{mode}_banded_ip_us_per_sample', '{:.1f}')} | "
                 f"{cell(r, f'{mode}_max_position_difference_rad', '{:.1e}')} |")
     lines += ["", "Online step per 4 Hz tick, 6 joints", "",
               "| L | superstate [µs/tick] | recursion [µs/tick] | superstate / recursion | "
@@ -255,7 +257,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="telesmooth bench",
                                      description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("out/bench"))
-    parser.add_argument("--max-n", type=int, default=100_000)
+    parser.add_argument("--max-n", type=int, default=100_000,
+                        help="largest N of the Offline-CKS rows (10² … 10⁶; default 10⁵)")
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--ticks", type=int, default=2000)
     parser.add_argument("--max-drake-n", type=int, default=10_000,
@@ -263,7 +266,7 @@ def main(argv=None) -> int:
     parser.add_argument("--sim-duration", type=float, default=30.0,
                         help="simulated seconds of the whole-chain real-time factor (0 = skip)")
     args = parser.parse_args(argv)
-    sizes = [n for n in (100, 1_000, 10_000, 100_000) if n <= args.max_n]
+    sizes = [n for n in (100, 1_000, 10_000, 100_000, 1_000_000) if n <= args.max_n]
     print("telesmooth core benchmark", file=sys.stderr)
     offline = bench_offline(sizes, args.repeat, args.max_drake_n)
     online = bench_online((3, 75), args.ticks, args.repeat)
