@@ -334,8 +334,13 @@ class LinkGuard(LeafSystem):
     ``q_commanded`` (J), ``guard_mode`` (1), ``braking_distance`` (J), ``stop_outcome`` (1),
     ``command_count`` (1), the two commands before the last (2J, oldest first), the bookkeeping
     [count seen, count used by the last command, pending, i_pkt, i_cmd, plan length N, next
-    plan index, m, command count], the plan (max_stop_ticks·J, the first N rows used) and the
-    limiter's state vector (``OnlineHardLimiter.get_state_vector``, 10J + 1).
+    plan index, m, command count, seq and session of the packet the last command used (NaN
+    before the first packet, after an ignored packet and after a receiver restart: the next
+    packet is then not consecutive)], the plan (max_stop_ticks·J, the first N rows used) and
+    the limiter's state vector (``OnlineHardLimiter.get_state_vector``, 10J + 1).
+
+    With ``command_seq`` connected the first packet is never consecutive (there is no packet
+    before it), so the hand-over to TRACK takes one re-join tick more than without.
     """
 
     modes = GUARD_MODES
@@ -595,6 +600,10 @@ class LinkGuard(LeafSystem):
         ``identity`` is the (seq, session) of ``q_accepted``'s packet, or None (unknown)."""
         if count < s.count_seen:  # a restarted receiver: re-baseline, nothing new
             s.count_seen = s.count_consumed = count
+            # q_accepted is now the new receiver's (its initial pose until its first
+            # packet): nothing pending may steer toward it, and its next packet is a gap.
+            s.pending = False
+            s.used_seq = s.used_session = math.nan
         elif count > s.count_seen:
             s.count_seen = count
             if self.pose_is_within_limits(q_accepted):

@@ -742,3 +742,30 @@ def test_defaults_are_valid_and_rounded_to_polls():
     config = LinkGuardConfig()
     assert (config.period_polls, config.timeout_polls) == (PERIOD_POLLS, TIMEOUT_POLLS)
     assert LinkGuardConfig(timeout_s=0.305).timeout_polls == 31
+
+
+def test_a_receiver_restart_drops_the_pending_packet_and_starts_a_gap():
+    # A packet after a gap waits in TRACK for the guard tick; the receiver restarts before
+    # it (count back to 0, q_accepted its initial pose far away): the guard must not steer
+    # toward that pose, and the restarted receiver's first packet is joined as a gap.
+    dut = make_guard(config=LinkGuardConfig(timeout_s=0.6))
+    z = limited_stream(Q0, np.array([[1.0, 0.5]] * 20))
+    context = dut.CreateDefaultContext()
+    state = dut._unpack(context)
+    for k in range(10):                        # packets 0..9 on the grid, then TRACK
+        dut._poll(state, PERIOD_POLLS * (k + 1), k + 1.0, z[k], (float(k), 7.0))
+    assert state.mode == MODE_TRACK
+    q_before = state.q.copy()
+    # Packet 11 (10 lost) lands one poll after the last command: pending, no tick yet.
+    dut._poll(state, PERIOD_POLLS * 10 + 1, 11.0, z[11], (11.0, 7.0))
+    assert state.pending and state.mode == MODE_TRACK
+    far = np.array([2.5, 2.5])
+    dut._poll(state, PERIOD_POLLS * 10 + 2, 0.0, far, (-1.0, 0.0))   # the restart
+    assert not state.pending
+    for poll in range(PERIOD_POLLS * 10 + 3, PERIOD_POLLS * 14):   # past the timeout
+        dut._poll(state, poll, 0.0, far, (-1.0, 0.0))
+    # Nothing steered toward the restarted receiver's initial pose: the guard stopped (or
+    # holds) from what it had commanded.
+    assert np.all(np.abs(state.q - q_before) < 0.5)
+    assert state.mode in (MODE_STOPPING, MODE_HELD)
+    assert np.isnan(state.used_seq)
