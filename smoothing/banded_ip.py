@@ -474,10 +474,15 @@ class BandedQp:
             lam_u = lam_u + alpha * step[3]
             lam_l = lam_l + alpha * step[4]
         converged = status == "converged"
-        if math.isnan(measures[2]):
+        if not converged:
+            # The measures of the iterate returned (the loop's are one step older).
+            fy = self.f @ y
             r_d = self.a_t @ (self.a @ y - self.c) + self.f_t @ (lam_u - lam_l)
             r_d[self.fixed] = 0.0
-            measures = (measures[0], measures[1], self._dual_measure(y, r_d, lam_u, lam_l))
+            measures = (max(np.max(np.abs(fy + s_u - self.upper)),
+                            np.max(np.abs(-fy + s_l + self.lower))),
+                        (s_u @ lam_u + s_l @ lam_l) / (2 * m),
+                        self._dual_measure(y, r_d, lam_u, lam_l))
         return BandedIpResult(
             y=y if converged else np.full_like(y, np.nan), converged=converged, status=status,
             iterations=iteration, linear_solver=self.route, primal_residual=float(measures[0]),

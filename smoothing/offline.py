@@ -242,36 +242,53 @@ def solve_offline_cks(
     def solve_banded(j) -> dict:
         """Joint j by the banded IP, from the optimum without limits (the RTS smoother's,
         computed with the same banded factorisation; with ``rest_at_end`` the rest is in it).
-        ckbs step 1: when that optimum meets every limit it is the optimum (result None)."""
+        ckbs step 1: when that optimum meets every limit it is the optimum (result None).
+        The objective is reported, as on the drake path, as the cost above the RTS
+        smoother's (the optimum without limits and without the rest at the end)."""
         start = time.perf_counter()
         problem = banded_problem(z[:, j], model, j, prior, q_start[j], acc[j], jerk[j],
                                  vel[j], constraint, rest_at_end)
+        a, c, f, lower, upper, fixed = problem
         shift = np.array([q_start[j], 0.0, 0.0, 0.0])
         qp = BandedQp(*problem, banded_options)
         built = time.perf_counter()
-        try:
-            y_free = qp.unconstrained_optimum()
-        except (LinAlgError, ValueError):
-            y_free = np.zeros(4 * num_samples)   # the interior point reports the failure
-        free_states = model.from_scaled(y_free.reshape(num_samples, 4) + shift)
+
+        def optimum_without_limits(qp_):
+            try:
+                y = qp_.unconstrained_optimum()
+            except (LinAlgError, ValueError):
+                return None
+            return y if np.all(np.isfinite(y)) else None
+
+        y_free = optimum_without_limits(qp)
         result = None
-        if not (np.all(np.isfinite(free_states)) and meets_the_limits(free_states, j)
-                and np.any(y_free)):
-            result = qp.run(y_free)
-        a, c = problem[0], problem[1]
+        if y_free is not None:
+            free_states = model.from_scaled(y_free.reshape(num_samples, 4) + shift)
+            if not meets_the_limits(free_states, j):
+                result = qp.run(y_free)
+        else:    # the interior point starts from rest and reports what goes wrong
+            result = qp.run(np.zeros(4 * num_samples))
+        y_rts = y_free
+        if rest_at_end or y_free is None:
+            y_rts = optimum_without_limits(BandedQp(
+                a, c, f[:0], lower[:0], upper[:0], np.zeros_like(fixed), banded_options))
         if result is None:
-            joint_states, cost = free_states, 0.0
+            y, joint_states = y_free, free_states
         elif result.converged:
-            joint_states = model.from_scaled(result.y.reshape(num_samples, 4) + shift)
-            cost = 0.5 * float(np.sum((a @ result.y - c) ** 2) - np.sum((a @ y_free - c) ** 2))
+            y = result.y
+            joint_states = model.from_scaled(y.reshape(num_samples, 4) + shift)
         else:
-            joint_states, cost = np.full((num_samples, 4), np.nan), np.nan
+            y, joint_states = None, np.full((num_samples, 4), np.nan)
+        cost = np.nan if y is None or y_rts is None else 0.5 * float(
+            np.sum((a @ y - c) ** 2) - np.sum((a @ y_rts - c) ** 2))
         return dict(result=result, states=joint_states, objective=cost,
                     build_s=built - start, solve_s=time.perf_counter() - built)
 
     presolved = {}
     if solver == "banded-ip":
-        workers = min(num_joints, threads or os.cpu_count() or 1)
+        available = (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+                     else os.cpu_count() or 1)
+        workers = min(num_joints, threads or available)
         if workers > 1:
             with ThreadPoolExecutor(max_workers=workers) as pool:
                 presolved = dict(enumerate(pool.map(solve_banded, range(num_joints))))

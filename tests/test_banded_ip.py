@@ -250,3 +250,17 @@ def test_a_joint_whose_unconstrained_optimum_meets_the_limits_is_returned_as_is(
     rts = rts_smoother(z, model, rest_prior(z[0], model)).mean
     _assert_same_states(loose.states[:, 0], rts[:, 0], 0.25, atol=1e-8)
     _assert_same_states(loose.states[:, 1], rts[:, 1], 0.25, atol=1e-8)
+
+
+@pytest.mark.parametrize("rest_at_end", [False, True])
+def test_both_solvers_report_the_same_objective(rest_at_end):
+    """The cost above the RTS smoother's, whatever the solver (with the rest at the end too)."""
+    z, model = _setup(0.25, num_samples=40, num_joints=2, seed=33)
+    kwargs = dict(max_acceleration=ACC, max_jerk=JERK, constraint="trajectory",
+                  rest_at_end=rest_at_end)
+    drake = solve_offline_cks(z, model, **kwargs)
+    banded = solve_offline_cks(z, model, solver="banded-ip", **kwargs)
+    assert drake.is_success and banded.is_success
+    _assert_same_states(banded.states[:, 0], drake.states[:, 0], 0.25, atol=1e-6)
+    np.testing.assert_allclose(banded.objective, drake.objective, rtol=1e-4, atol=1e-12)
+    assert np.all(banded.objective >= 0.0)
