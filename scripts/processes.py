@@ -34,13 +34,16 @@ def _check_url(url: str) -> str:
 def _advance(simulator, duration_s: float, realtime: float, name: str, status=None) -> float:
     """Runs to ``duration_s`` in 0.25 s slices, printing progress (and ``status()``, if
     given) every second. SIGINT or SIGTERM ends the run early but cleanly: the slice in
-    progress finishes and the caller writes its logs as after a full run."""
+    progress finishes and the caller writes its logs as after a full run (up to that time).
+    A second signal interrupts at once (KeyboardInterrupt, no logs)."""
     if realtime > 0:
         simulator.set_target_realtime_rate(realtime)
     simulator.Initialize()
     stopped_by = []
 
     def on_signal(signum, _frame):
+        if stopped_by:   # a second signal: stop at once (e.g. a slice that hangs)
+            raise KeyboardInterrupt(f"{name}: second {signal.Signals(signum).name}")
         stopped_by.append(signal.Signals(signum).name)
 
     previous = {signum: signal.signal(signum, on_signal)
