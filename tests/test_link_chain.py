@@ -125,6 +125,8 @@ def test_the_guard_keeps_the_limits(case):
     # whole command sequence is within the limits in every case, unless a stop fell back
     # to the hold (a velocity step, reported).
     hold_fallback = np.any(logs["guard_stop_outcome"].data()[0] >= 3)
+    if ordered:
+        assert not hold_fallback, name   # the stream is within the limits, the link in order
     ratio = fd_limits_ratio(commands, dt, a_max, j_max)
     if not hold_fallback:
         assert ratio.acceleration <= 1 + 1e-6 and ratio.jerk <= 1 + 1e-6, (name, ratio)
