@@ -182,9 +182,10 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
 
 
 def _collision_stops(record: SimulationRecord) -> dict | None:
-    """With ``on_collision = "stop"``: how many stop plans of each outcome were made (a plan
-    is counted where the logged outcome or braking distance changes) and the largest braking
-    distance per joint, rad; None with the hold."""
+    """With ``on_collision = "stop"``: how many stop plans of each outcome were made and the
+    largest braking distance per joint, rad; None with the hold. A plan is counted where the
+    logged outcome or braking distance changes, so two identical plans in a row (e.g. two
+    hold fallbacks of the same kind, both with zero braking distance) count once."""
     if record.stop_status is None:
         return None
     from telesmooth.systems.collision_stop import STOP_OUTCOMES
