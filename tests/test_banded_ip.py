@@ -264,3 +264,37 @@ def test_both_solvers_report_the_same_objective(rest_at_end):
     _assert_same_states(banded.states[:, 0], drake.states[:, 0], 0.25, atol=1e-6)
     np.testing.assert_allclose(banded.objective, drake.objective, rtol=1e-4, atol=1e-12)
     assert np.all(banded.objective >= 0.0)
+
+
+@pytest.mark.parametrize("constraint", ["state", "trajectory"])
+def test_agrees_with_the_mathematical_program_to_a_microradian(constraint):
+    """The issue's agreement target with the default tolerances, on the benchmark's data."""
+    from telesmooth.scripts.bench_core import MAX_ACCELERATION, MAX_JERK, synthetic_operator
+    from telesmooth.smoothing.model import DEFAULT_DT_S, DEFAULT_R, DEFAULT_SIGMA
+
+    z = synthetic_operator(1000, 3, seed=1000)
+    model = JerkModel.make(DEFAULT_DT_S, DEFAULT_SIGMA, DEFAULT_R, num_joints=3)
+    kwargs = dict(max_acceleration=MAX_ACCELERATION, max_jerk=MAX_JERK, constraint=constraint)
+    drake = solve_offline_cks(z, model, **kwargs)
+    banded = solve_offline_cks(z, model, solver="banded-ip", **kwargs)
+    assert drake.is_success and banded.is_success
+    assert np.any(banded.objective > 0)          # the limits bind
+    assert np.max(np.abs(banded.states[:, :, 0] - drake.states[:, :, 0])) <= 1e-6
+
+
+def test_a_regularised_step_that_fails_twice_in_one_iteration_falls_back_to_qr():
+    # Very tight tolerances drive the normal equations to the edge of definiteness: the
+    # regularised Cholesky + CG then misses the predictor's and the corrector's right-hand
+    # sides of the same iteration; both must go to the square-root route (it used to give
+    # "numerical_failure" on the corrector).
+    from telesmooth.scripts.bench_core import MAX_ACCELERATION, MAX_JERK, synthetic_operator
+    from telesmooth.smoothing.model import DEFAULT_DT_S, DEFAULT_R, DEFAULT_SIGMA
+
+    z = synthetic_operator(1000, 6, seed=1000)
+    model = JerkModel.make(DEFAULT_DT_S, DEFAULT_SIGMA, DEFAULT_R, num_joints=6)
+    tight = BandedIpOptions(dual_tolerance=1e-11, gap_tolerance=1e-15, primal_tolerance=1e-12,
+                            max_iterations=200)
+    result = solve_offline_cks(z, model, max_acceleration=MAX_ACCELERATION, max_jerk=MAX_JERK,
+                               constraint="trajectory", solver="banded-ip",
+                               banded_options=tight)
+    assert result.is_success, result.solution_results
