@@ -21,7 +21,8 @@ almost every demonstration (the report gives the fraction).
 Tasks are independent and deterministic: the same task gives the same figures on any worker, and
 :func:`run_experiment` orders the results by task, so the output does not depend on the number
 of workers (``tests/test_experiment.py``). Tasks run on Dask (``dask.distributed``): a local
-cluster of worker processes by default (bound to 127.0.0.1, no dashboard), an existing cluster
+cluster of worker processes by default (bound to 127.0.0.1, no dashboard: only the scheduler's
+health/metrics HTTP endpoint, on 127.0.0.1), an existing cluster
 given its scheduler address, or in this process (``workers=0``).
 
 Aggregation (:func:`summarize`): P of a run is taken against the original run of the same
@@ -362,7 +363,8 @@ def run_experiment(base: Scenario, config: ExperimentConfig, *, workers: int = 2
                           "dask[distributed]); workers=0 runs without it") from error
     cluster = None
     if scheduler is None:
-        # Worker processes on this host only; no dashboard (no HTTP server).
+        # Worker processes on this host only; no dashboard (the scheduler still serves its
+        # health/metrics endpoint, on 127.0.0.1 like everything else here).
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                host="127.0.0.1", dashboard_address=None)
         client = Client(cluster)
