@@ -83,14 +83,14 @@ def robot_commanded_pose(lcm_url: str, scenario, wait_s: float):
     import lcm as lcm_module
 
     from telesmooth.diagrams.channels import ONBOARD_JOINT_STATUS
-    from telesmooth.lcm_types import lcmt_onboard_joint_status
+    from telesmooth.lcm_types import decode_exact, lcmt_onboard_joint_status
 
     arm = scenario.arm_description
     found = []
 
     def handle(_channel, data):
         try:
-            msg = lcmt_onboard_joint_status.decode(data)
+            msg = decode_exact(lcmt_onboard_joint_status, data)
         except Exception:  # noqa: BLE001 - garbage on the channel is not telemetry
             return
         q = np.asarray(msg.joint_position_commanded, dtype=float)

@@ -31,7 +31,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
-from telesmooth.lcm_types import lcmt_teleop_joint_command
+from telesmooth.lcm_types import decode_exact, lcmt_teleop_joint_command
 from telesmooth.link.auth import check_key, verify
 from telesmooth.systems.timing import check_period
 
@@ -369,7 +369,7 @@ class JointCommandReceiver(LeafSystem):
                     continue
                 status[_LAST_PACKET] = index
                 try:
-                    msg = lcmt_teleop_joint_command.decode(bytes(data))
+                    msg = decode_exact(lcmt_teleop_joint_command, data)
                 except Exception as error:  # noqa: BLE001 - any failure = not this type
                     self._reject("undecodable", f"{len(data)} bytes: {type(error).__name__}: "
                                  f"{error}", status, now, reasons)

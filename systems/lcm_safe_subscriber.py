@@ -27,6 +27,8 @@ import logging
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem
 
+from telesmooth.lcm_types import decode_exact
+
 __all__ = ["DEFAULT_QUEUE_CAPACITY", "RECENT_PACKETS", "LcmSafeSubscriber"]
 
 _logger = logging.getLogger(__name__)
@@ -102,7 +104,7 @@ class _Inbox:
     def _why_undecodable(self, data: bytes) -> str | None:
         """None if ``data`` decodes as the channel's type, else the reason (for people)."""
         try:
-            self._lcm_type.decode(data)
+            decode_exact(self._lcm_type, data)
         # lcm-gen decoders raise ValueError (wrong fingerprint) and struct.error (short or
         # malformed body), but a damaged string may also give UnicodeDecodeError, an absurd
         # array length MemoryError, ...: any failure means "not a message of this type".

@@ -45,6 +45,7 @@ from telesmooth.datasets.haptic_recording import (
     write_haptic_npz,
 )
 from telesmooth.lcm_types import (
+    decode_exact,
     lcmt_onboard_joint_status,
     lcmt_teleop_collision_event,
     lcmt_teleop_haptic_command,
@@ -838,11 +839,12 @@ def lcm_messages(draw, lcm_type=None):
 
 
 def _decode(lcm_type, data: bytes):
-    """Decodes; returns the message or the exception (which must be a DECODE_ERROR), and
-    checks that decoding is quick (no hang on absurd lengths)."""
+    """Decodes as the receivers do (``decode_exact``); returns the message or the exception
+    (which must be a DECODE_ERROR), and checks that decoding is quick (no hang on absurd
+    lengths)."""
     start = time.perf_counter()
     try:
-        result = lcm_type.decode(data)
+        result = decode_exact(lcm_type, data)
     except DECODE_ERRORS as error:
         result = error
     assert time.perf_counter() - start < 1.0, "decode took more than 1 s"
@@ -1365,3 +1367,21 @@ def test_malformed_packets_on_the_channel_do_not_stop_the_receiver(kind, payload
     np.testing.assert_array_equal(output.Eval(context), second)
     assert rejected.Eval(context)[0] == 0.0
     assert subscriber.get_message_count_output_port().Eval(subscriber_context)[0] == 2.0
+
+
+def test_every_cut_of_a_signed_command_and_an_extra_byte_are_refused_exactly():
+    # Exhaustive: every prefix of a signed command (the HMAC tag last, where the generated
+    # decoder reads a short tag without complaint) and one extra byte are decode errors.
+    msg = lcmt_teleop_joint_command()
+    msg.seq, msg.session_id, msg.num_joints = 5, 77, 2
+    msg.joint_name = ["shoulder", "elbow"]
+    msg.joint_position_smoothed = [0.1, 0.2]
+    msg.joint_velocity_smoothed = [0.0, 0.0]
+    msg.auth_tag = bytes(range(32))
+    msg.auth_tag_size = 32
+    encoded = msg.encode()
+    assert lcmt_teleop_joint_command.decode(encoded[:-1]).auth_tag == bytes(range(31))
+    for cut in range(len(encoded)):
+        assert isinstance(_decode(lcmt_teleop_joint_command, encoded[:cut]), DECODE_ERRORS), cut
+    assert isinstance(_decode(lcmt_teleop_joint_command, encoded + b"\x00"), DECODE_ERRORS)
+    assert decode_exact(lcmt_teleop_joint_command, encoded).auth_tag == bytes(range(32))
