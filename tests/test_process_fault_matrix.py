@@ -25,17 +25,13 @@ is online-hard; the guard joins every gap through its limiter and ramps down bet
 """
 
 import json
-import os
-import signal
-import subprocess
-import sys
 import threading
 import time
-from pathlib import Path
 
 import lcm
 import numpy as np
 import pytest
+from process_fixtures import CliProcess, bus_urls, read_rows
 
 from telesmooth.diagrams.channels import ONBOARD_JOINT_STATUS, TELEOP_JOINT_COMMAND
 from telesmooth.diagrams.scenario import load_scenario
@@ -64,33 +60,6 @@ CASES = {
 }
 COUNT_FIELDS = ("accepted_count", "rejected_invalid_count", "rejected_auth_count",
                 "dropped_duplicate_count", "dropped_stale_count", "undecodable_count")
-
-
-def _read(path):
-    rows = Path(path).read_text().splitlines()
-    return np.array([[float(v) for v in row.split(",")] for row in rows[1:]])
-
-
-class _Process:
-    def __init__(self, args, log_path):
-        self.log_path = Path(log_path)
-        with open(self.log_path, "w") as log:
-            self.popen = subprocess.Popen(args, stdout=log, stderr=log, text=True)
-
-    def wait_for(self, text, timeout_s):
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if text in self.log_path.read_text():
-                return
-            if self.popen.poll() is not None:
-                break
-            time.sleep(0.05)
-        raise AssertionError(f"no {text!r} within {timeout_s} s: {self.log_path.read_text()}")
-
-    def stop(self, timeout_s=60):
-        """SIGINT, then the exit code (0 expected: both tools stop cleanly on it)."""
-        self.popen.send_signal(signal.SIGINT)
-        return self.popen.wait(timeout=timeout_s)
 
 
 class _Listener:
@@ -150,18 +119,15 @@ class _Listener:
 @pytest.fixture(scope="module")
 def matrix(tmp_path_factory):
     out = tmp_path_factory.mktemp("fault_matrix")
-    port = 7400 + os.getpid() % 90
-    url_a = f"udpm://239.255.76.67:{port}?ttl=0"
-    url_b = f"udpm://239.255.76.67:{port + 100}?ttl=0"
+    url_a, url_b = bus_urls(7400)
     key_path = out / "uplink.key"
     generate_key_file(key_path)
-    telesmooth = [sys.executable, "-m", "telesmooth.scripts.cli"]
     common = ["--scenario-text", SCENARIO_TEXT, "--uplink-key", str(key_path)]
     listener = _Listener(url_a, url_b)
     processes = []
 
     def start(args, name):
-        process = _Process(telesmooth + args, out / f"{name}.log")
+        process = CliProcess(args, out / f"{name}.log")
         processes.append(process)
         return process
 
@@ -194,7 +160,7 @@ def matrix(tmp_path_factory):
                 assert relays[0].stop() == 0           # the link goes down ...
                 time.sleep(2.0)
                 relays.append(relay(f"relay{index}b", faults))   # ... and comes back
-            assert ground.popen.wait(timeout=180) == 0, ground.log_path.read_text()
+            assert ground.wait(timeout=180) == 0, ground.log_path.read_text()
             time.sleep(2.5)                            # the relay's queue drains (delay 1.5 s)
             for process in relays:
                 assert process.stop() == 0, process.log_path.read_text()
@@ -207,10 +173,10 @@ def matrix(tmp_path_factory):
     finally:
         listener.close()
         for process in processes:
-            if process.popen.poll() is None:
-                process.popen.kill()
-    accepted = _read(out / "onboard_commands.csv")        # count, session, seq, t, q…
-    guard = _read(out / "onboard_guard.csv")              # command, t, mode, outcome, q…
+            if process.poll() is None:
+                process.kill()
+    accepted = read_rows(out / "onboard_commands.csv")        # count, session, seq, t, q…
+    guard = read_rows(out / "onboard_guard.csv")              # command, t, mode, outcome, q…
     return dict(cases=cases, accepted=accepted, guard=guard, listener=listener,
                 scenario=load_scenario(scenario_text=SCENARIO_TEXT), out=out)
 

@@ -13,19 +13,15 @@ held while no ground ran, and the restarted ground's first command continued fro
 robot's commanded pose.
 """
 
-import csv
 import json
-import os
 import signal
-import subprocess
-import sys
 import threading
 import time
-from pathlib import Path
 
 import lcm
 import numpy as np
 import pytest
+from process_fixtures import CliProcess, bus_urls, read_rows
 
 from telesmooth.diagrams.channels import TELEOP_JOINT_COMMAND
 from telesmooth.diagrams.scenario import load_scenario
@@ -36,12 +32,6 @@ from telesmooth.systems.link_guard import MODE_HELD, MODE_STOPPING, fd_limits_ra
 SCENARIO_TEXT = ("{haptic: {source: synthetic, synthetic: {duration_s: 12.0, hold_start_s: 0.5,"
                  " hold_end_s: 0.5}}, settle_s: 0.0, smoother: {method: online-hard}}")
 LINK = "{loss_probability: 0.1, duplicate_probability: 0.3, jitter_s: 0.05, seed: 7}"
-
-
-def _read(path):
-    with open(path, newline="") as handle:
-        rows = list(csv.reader(handle))
-    return np.array(rows[1:], dtype=float)
 
 
 def _command(seq, names, q, session=1):
@@ -62,41 +52,19 @@ def _is_ground_packet(data) -> bool:
     return msg.auth_tag_size == 32 and msg.session_id < 2**62
 
 
-def _wait_for(process, text, timeout_s):
-    """Waits until ``process``'s stderr log contains ``text``; returns the log so far.
-
-    Each process writes its stderr to a file: a pipe nobody drains would fill up and block
-    the process (the onboard one logs every rejected packet)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        log = Path(process.log_path).read_text()
-        if text in log:
-            return log
-        if process.poll() is not None:
-            break
-        time.sleep(0.05)
-    raise AssertionError(f"no {text!r} within {timeout_s} s: {Path(process.log_path).read_text()}")
-
-
 @pytest.fixture(scope="module")
 def fault_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("process_faults")
-    port = 7600 + os.getpid() % 90
-    url_a = f"udpm://239.255.76.67:{port}?ttl=0"
-    url_b = f"udpm://239.255.76.67:{port + 100}?ttl=0"
+    url_a, url_b = bus_urls(7600)
     key_path = out / "uplink.key"
     key = generate_key_file(key_path)
     scenario = load_scenario(scenario_text=SCENARIO_TEXT)
     names = scenario.arm_description.joint_names
-    telesmooth = [sys.executable, "-m", "telesmooth.scripts.cli"]
     common = ["--scenario-text", SCENARIO_TEXT, "--uplink-key", str(key_path)]
     processes = []
 
     def start(args, name):
-        log_path = out / f"{name}.log"
-        with open(log_path, "w") as log:
-            process = subprocess.Popen(args, stderr=log, stdout=log, text=True)
-        process.log_path = log_path
+        process = CliProcess(args, out / f"{name}.log")
         processes.append(process)
         return process
 
@@ -116,16 +84,16 @@ def fault_run(tmp_path_factory):
     pumping.start()
     attacks = {"unsigned": 0, "forged": 0, "replayed": 0, "garbage": 0, "nan": 0, "count": 0}
     try:
-        onboard = start(telesmooth + ["onboard", "--lcm-url", url_b, "--duration", "30",
+        onboard = start(["onboard", "--lcm-url", url_b, "--duration", "30",
                                       "--out", str(out)] + common, "onboard")
-        _wait_for(onboard, "onboard: listening", 120)
-        relay = start(telesmooth + ["link-relay", "--in-url", url_a, "--out-url", url_b,
+        onboard.wait_for("onboard: listening", 120)
+        relay = start(["link-relay", "--in-url", url_a, "--out-url", url_b,
                                     "--link", LINK, "--report", str(out / "relay.json"),
                                     "--duration", "40"], "relay")
-        _wait_for(relay, "ready", 60)
-        ground = start(telesmooth + ["ground", "--lcm-url", url_a, "--duration", "12",
+        relay.wait_for("ready", 60)
+        ground = start(["ground", "--lcm-url", url_a, "--duration", "12",
                                      "--resume-wait", "0"] + common, "ground1")
-        _wait_for(ground, "ground: publishing", 120)
+        ground.wait_for("ground: publishing", 120)
         time.sleep(3.0)
         # The attacks, on the onboard bus, while the first ground runs.
         # 0.1 s apart: Drake's DrakeLcm keeps one queued message per subscription, so packets
@@ -160,9 +128,9 @@ def fault_run(tmp_path_factory):
         ground.send_signal(signal.SIGKILL)          # the ground process dies mid-run
         ground.wait(timeout=30)
         time.sleep(4.0)                             # onboard: ramp down, hold
-        ground2 = start(telesmooth + ["ground", "--lcm-url", url_a, "--duration", "5",
+        ground2 = start(["ground", "--lcm-url", url_a, "--duration", "5",
                                       "--resume-wait", "5"] + common, "ground2")
-        _wait_for(ground2, "ground: publishing", 120)
+        ground2.wait_for("ground: publishing", 120)
         assert ground2.wait(timeout=120) == 0, ground2.log_path.read_text()
         restart_log = ground2.log_path.read_text()
         assert onboard.wait(timeout=120) == 0, onboard.log_path.read_text()
@@ -195,7 +163,7 @@ def test_only_authentic_commands_were_accepted_and_none_was_lost(fault_run):
     for data in fault_run["sent_on_a"]:
         msg = lcmt_teleop_joint_command.decode(data)
         sent[(msg.session_id, msg.seq)] = np.asarray(msg.joint_position_smoothed)
-    accepted = _read(fault_run["out"] / "onboard_commands.csv")  # accepted, session, seq, t, q
+    accepted = read_rows(fault_run["out"] / "onboard_commands.csv")  # accepted, session, seq, t, q
     sessions = sorted({int(s) for s in accepted[:, 1]})
     assert len(sessions) == 2 and sessions[0] < sessions[1] < 2**62   # two ground runs
     keys = [(int(s), int(k)) for s, k in accepted[:, 1:3]]
@@ -206,8 +174,8 @@ def test_only_authentic_commands_were_accepted_and_none_was_lost(fault_run):
 
 def test_the_robot_ramped_down_after_the_kill_and_the_restart_continued_from_it(fault_run):
     scenario = fault_run["scenario"]
-    guard = _read(fault_run["out"] / "onboard_guard.csv")   # command, t, mode, outcome, q…
-    accepted = _read(fault_run["out"] / "onboard_commands.csv")
+    guard = read_rows(fault_run["out"] / "onboard_guard.csv")   # command, t, mode, outcome, q…
+    accepted = read_rows(fault_run["out"] / "onboard_commands.csv")
     q = guard[:, 4:]
     assert np.all(np.isfinite(q))
     arm = scenario.arm_description

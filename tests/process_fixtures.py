@@ -1,0 +1,57 @@
+"""Shared by the tests that run `telesmooth` commands as real processes on udpm buses."""
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+TELESMOOTH = [sys.executable, "-m", "telesmooth.scripts.cli"]
+
+
+def bus_urls(first_port: int) -> tuple[str, str]:
+    """Two udpm buses (A, B) that stay on this host (ttl=0), 100 ports apart, chosen from
+    ``first_port`` by the pid so that modules of one session use their own ranges."""
+    port = first_port + os.getpid() % 90
+    return (f"udpm://239.255.76.67:{port}?ttl=0", f"udpm://239.255.76.67:{port + 100}?ttl=0")
+
+
+def read_rows(path) -> np.ndarray:
+    """A CSV file the processes wrote, without its header, as floats."""
+    with open(path, newline="") as handle:
+        rows = list(csv.reader(handle))
+    return np.array(rows[1:], dtype=float)
+
+
+class CliProcess(subprocess.Popen):
+    """A `telesmooth` command (``args`` after the program) in a child process.
+
+    stdout and stderr go to ``log_path``: a pipe nobody drains would fill up and block the
+    process (the onboard one logs every rejected packet).
+    """
+
+    def __init__(self, args, log_path):
+        self.log_path = Path(log_path)
+        with open(self.log_path, "w") as log:
+            super().__init__(TELESMOOTH + list(args), stdout=log, stderr=log, text=True)
+
+    def wait_for(self, text: str, timeout_s: float) -> str:
+        """Waits until the log contains ``text``; returns the log so far."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            log = self.log_path.read_text()
+            if text in log:
+                return log
+            if self.poll() is not None:
+                break
+            time.sleep(0.05)
+        raise AssertionError(f"no {text!r} within {timeout_s} s: {self.log_path.read_text()}")
+
+    def stop(self, timeout_s: float = 60) -> int:
+        """SIGINT, then the exit code (0 expected: the tools stop cleanly on it)."""
+        self.send_signal(signal.SIGINT)
+        return self.wait(timeout=timeout_s)
