@@ -341,6 +341,16 @@ def test_stop_only_ports_exist_only_with_the_stop_policy():
     assert stop.get_stop_status_output_port().size() == 1
 
 
+def _histories_at_the_limits(limiter, target, ticks=120):
+    """The last three commands of ``limiter`` (from rest at 0) chasing ``target`` and its
+    negative in turn, 20 ticks each: at its limits, FD states on the boundary of S."""
+    target = np.asarray(target, dtype=float)
+    sent = [np.zeros(target.size)] * 3
+    for tick in range(ticks):
+        sent.append(limiter.step(target if (tick // 20) % 2 == 0 else -target))
+        yield np.array(sent[-3:])
+
+
 def test_rounding_tolerance_plans_from_the_nudged_history_and_is_validated():
     from telesmooth.smoothing.online_hard import OnlineHardLimiter
     from telesmooth.systems.collision_stop import (
@@ -354,10 +364,8 @@ def test_rounding_tolerance_plans_from_the_nudged_history_and_is_validated():
     limiter = OnlineHardLimiter(dt_s=DT, max_acceleration=A_MAX, max_jerk=J_MAX,
                                 q_start=[0.0, 0.0])
     sets = limiter.stoppable_sets
-    sent, rescued = [np.zeros(2)] * 3, 0
-    for tick in range(120):   # a limiter at its limits: FD states on the boundary of S
-        sent.append(limiter.step([2.0, -2.0] if (tick // 20) % 2 == 0 else [-2.0, 2.0]))
-        history = np.array(sent[-3:])
+    rescued = 0
+    for history in _histories_at_the_limits(limiter, [2.0, -2.0]):
         plan = tolerant.plan(history, max_ticks=400)
         oracle = exact.plan(nudge_into_stoppable_set(history, sets, DT), max_ticks=400)
         assert plan.outcome == oracle.outcome
@@ -394,11 +402,8 @@ def test_the_ground_planner_treats_rounding_like_the_onboard_guard():
                                  pose_is_safe=always_safe, joint_names=names)
     limiter = OnlineHardLimiter(dt_s=DT, max_acceleration=A_MAX, max_jerk=J_MAX,
                                 q_start=[0.0, 0.0, 0.0])
-    sent, rescued = [np.zeros(3)] * 3, 0
-    for tick in range(120):
-        target = [0.5, -0.5, 0.5] if (tick // 20) % 2 == 0 else [-0.5, 0.5, -0.5]
-        sent.append(limiter.step(target))
-        history = np.array(sent[-3:])
+    rescued = 0
+    for history in _histories_at_the_limits(limiter, [0.5, -0.5, 0.5]):
         plan = ground.plan(history, max_ticks=400)
         oracle = exact.plan(nudge_into_stoppable_set(history, limiter.stoppable_sets, DT),
                             max_ticks=400)
