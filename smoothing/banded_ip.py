@@ -21,8 +21,9 @@ whose matrix is banded: half-bandwidth 7 from the block-tridiagonal AᵀA, 12 wi
 differences of the positions (4 consecutive samples × 4 states). Two linear-algebra routes:
 
 ``"cholesky"``
-    LAPACK banded Cholesky (``scipy.linalg.cholesky_banded``, lower storage), O(N·b²) per step
-    with no Python loop over samples. Accurate while AᵀA is well conditioned (Δt ≳ 0.05 s with the SPEC §8
+    LAPACK banded Cholesky (``dpbtrf``, lower storage, called so that joints in threads run
+    at once: :mod:`~telesmooth.smoothing.lapack_banded`), O(N·b²) per step with no Python
+    loop over samples. Accurate while AᵀA is well conditioned (Δt ≳ 0.05 s with the SPEC §8
     σ and r: cond ≈ 5e7 at 4 Hz).
 ``"qr"``
     A sequential banded QR of the whitened rows [A; √D F] (a square-root information
@@ -44,7 +45,9 @@ import math
 
 import numpy as np
 import scipy.sparse as sparse
-from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded, solve_banded
+from scipy.linalg import LinAlgError, solve_banded
+
+from telesmooth.smoothing.lapack_banded import cholesky_lower_band, solve_lower_band
 
 __all__ = ["BandedIpOptions", "BandedIpResult", "BandedQp", "LINEAR_SOLVERS", "solve_banded_qp"]
 
@@ -122,15 +125,16 @@ class BandedIpResult:
 
 
 def _band_of(matrix: sparse.spmatrix, half_bandwidth: int) -> np.ndarray:
-    """Lower banded storage ab[i − j, j] = M[i, j] (i ≥ j) of a symmetric sparse matrix
+    """Lower band storage band[j, i − j] = M[i, j] (j ≤ i ≤ j + u) of a symmetric sparse
+    matrix, shape (n, u + 1), the layout of :mod:`~telesmooth.smoothing.lapack_banded`
     (entries outside the band are ignored). LAPACK's banded Cholesky is about twice as fast
     on the lower storage as on the upper one (measured at N = 10⁵)."""
     coo = sparse.coo_matrix(matrix)
     n = coo.shape[0]
+    width = half_bandwidth + 1
     lower = (coo.row >= coo.col) & (coo.row - coo.col <= half_bandwidth)
-    flat = (coo.row[lower] - coo.col[lower]) * n + coo.col[lower]
-    return np.bincount(flat, weights=coo.data[lower],
-                       minlength=(half_bandwidth + 1) * n).reshape(half_bandwidth + 1, n)
+    flat = coo.col[lower] * width + (coo.row[lower] - coo.col[lower])
+    return np.bincount(flat, weights=coo.data[lower], minlength=width * n).reshape(n, width)
 
 
 def _half_bandwidth(normal: sparse.spmatrix, f: sparse.csr_matrix) -> int:
@@ -181,15 +185,16 @@ class BandedQp:
         goes in the band, so that each Newton step assembles its band with one bincount."""
         u = self.half_bandwidth
         n = self.n
-        self.band_size = (u + 1) * n
+        width = u + 1
+        self.band_size = width * n
         # Fixed variables: their rows and columns zero, a unit diagonal.
-        keep = np.ones((u + 1, n), dtype=bool)
-        for offset in range(u + 1):
-            keep[offset, :][self.fixed] = False                        # M[v + offset, v]
-            keep[offset, :n - offset][self.fixed[offset:]] = False     # M[v, v − offset]
+        keep = np.ones((n, width), dtype=bool)
+        for offset in range(width):
+            keep[:, offset][self.fixed] = False                        # M[v + offset, v]
+            keep[:n - offset, offset][self.fixed[offset:]] = False     # M[v, v − offset]
         self.band_keep = keep
         self.normal_band = _band_of(self.normal, u) * keep
-        self.normal_band[0, self.fixed] = 1.0
+        self.normal_band[self.fixed, 0] = 1.0
         f = self.f
         counts = np.diff(f.indptr)
         rows_all, flat_all, coef_all = [], [], []
@@ -201,7 +206,7 @@ class BandedQp:
                 value = f.data[f.indptr[rows] + first] * f.data[f.indptr[rows] + second]
                 low, high = np.minimum(col_a, col_b), np.maximum(col_a, col_b)
                 rows_all.append(rows)
-                flat_all.append((high - low) * n + low)
+                flat_all.append(low * width + (high - low))
                 coef_all.append(value)
         self.pair_rows = np.concatenate(rows_all) if rows_all else np.zeros(0, dtype=int)
         self.pair_flat = np.concatenate(flat_all) if flat_all else np.zeros(0, dtype=int)
@@ -211,28 +216,28 @@ class BandedQp:
         self.pair_rows = self.pair_rows[on_kept]
         self.pair_flat = self.pair_flat[on_kept]
         self.pair_coef = self.pair_coef[on_kept]
-        # With one entry per band position (the state box), the band is assembled by a
-        # scatter instead of a bincount over the whole band.
-        self.pair_unique = np.unique(self.pair_flat).size == self.pair_flat.size
+        # Band positions touched by F (a few per sample) and the sparse map from the row
+        # weights D to their entries: the band is assembled by one sparse product and a
+        # scatter (a bincount over the whole band cost ~45 ms per step at N = 10⁵).
+        self.pair_positions, position_of_pair = np.unique(self.pair_flat, return_inverse=True)
+        self.pair_map = sparse.csr_matrix(
+            (self.pair_coef, (position_of_pair, self.pair_rows)),
+            shape=(self.pair_positions.size, self.m))
 
     def _band(self, weights) -> np.ndarray:
-        """Banded storage of AᵀA + Fᵀ diag(weights) F with the fixed rows masked."""
-        if self.pair_unique:
-            band = self.normal_band.copy()
-            band.ravel()[self.pair_flat] += weights[self.pair_rows] * self.pair_coef
-            return band
-        added = np.bincount(self.pair_flat, weights=weights[self.pair_rows] * self.pair_coef,
-                            minlength=self.band_size)
-        return self.normal_band + added.reshape(self.half_bandwidth + 1, self.n)
+        """Band storage of AᵀA + Fᵀ diag(weights) F with the fixed rows masked."""
+        band = self.normal_band.copy()
+        band.ravel()[self.pair_positions] += self.pair_map @ weights
+        return band
 
     def _choose_route(self, requested: str) -> str:
         if requested != "auto":
             return requested
         try:
-            factor = cholesky_banded(self.normal_band, lower=True, check_finite=False)
+            factor = cholesky_lower_band(self.normal_band)
         except LinAlgError:
             return "qr"
-        pivots = np.abs(factor[0])
+        pivots = np.abs(factor[:, 0])
         if not np.all(np.isfinite(pivots)) or pivots.min() <= 0.0:
             return "qr"
         ratio = (pivots.max() / pivots.min()) ** 2
@@ -288,19 +293,19 @@ class BandedQp:
         self._prepare_qr()
 
     def _cholesky_solver(self, weights):
-        band = self._band(weights)
         try:
-            factor = cholesky_banded(band, lower=True, check_finite=False)
+            factor = cholesky_lower_band(self._band(weights), overwrite=True)
             shifted = False
         except LinAlgError:
             # Static regularisation: factor M + εI, then conjugate gradients on M with that
             # factor as the preconditioner.
-            shift = 1e-12 * float(np.max(band[0]))
+            band = self._band(weights)
+            shift = 1e-12 * float(np.max(band[:, 0]))
             for _ in range(6):
                 trial = band.copy()
-                trial[0, self.free] += shift
+                trial[self.free, 0] += shift
                 try:
-                    factor = cholesky_banded(trial, lower=True, check_finite=False)
+                    factor = cholesky_lower_band(trial, overwrite=True)
                     break
                 except LinAlgError:
                     shift *= 100.0
@@ -314,7 +319,7 @@ class BandedQp:
             return out
 
         def precondition(v):
-            out = cho_solve_banded((factor, True), v, check_finite=False)
+            out = solve_lower_band(factor, v)
             out[self.fixed] = 0.0
             return out
 
