@@ -298,3 +298,31 @@ def test_a_regularised_step_that_fails_twice_in_one_iteration_falls_back_to_qr()
                                constraint="trajectory", solver="banded-ip",
                                banded_options=tight)
     assert result.is_success, result.solution_results
+
+
+def test_band_helpers_against_dense_matrices():
+    """_band_of, _half_bandwidth and _max_step against dense / brute-force computations."""
+    from scipy import sparse
+
+    from telesmooth.smoothing.banded_ip import _band_of, _half_bandwidth, _max_step
+    rng = np.random.default_rng(5)
+    a = sparse.random(30, 20, density=0.0, random_state=1, format="lil")
+    for row in range(30):                       # rows spanning at most 6 columns
+        start = rng.integers(0, 15)
+        for col in rng.choice(np.arange(start, start + 6), size=3, replace=False):
+            a[row, col] = rng.standard_normal()
+    a = a.tocsr()
+    f = sparse.csr_matrix(np.eye(20)[[2, 5]] - np.eye(20)[[11, 6]])  # spans 9 and 1
+    dense = (a.T @ a).toarray()
+    rows, cols = np.nonzero(dense)
+    assert _half_bandwidth(a, f) == max(int(np.max(np.abs(rows - cols))), 9)
+    band = _band_of(a.T @ a, 7)
+    for offset in range(8):
+        np.testing.assert_array_equal(band[: 20 - offset, offset], np.diag(dense, -offset))
+        np.testing.assert_array_equal(band[20 - offset:, offset], 0.0)
+    values = (rng.uniform(0.1, 1.0, 50), rng.uniform(0.1, 1.0, 7))
+    steps = (rng.standard_normal(50), np.abs(rng.standard_normal(7)))
+    brute = min(-v / d for vs, ds in zip(values, steps) for v, d in zip(vs, ds) if d < 0)
+    assert _max_step(values, steps) == brute
+    assert _max_step((np.ones(3),), (np.ones(3),)) == np.inf
+    assert _max_step((np.zeros(0),), (np.zeros(0),)) == np.inf
