@@ -120,6 +120,9 @@ def synthetic_joint_motion(
     target p' = p + U(-reach_rad, reach_rad) (clipped to +-position_limit_rad if given), add
     the minimum-jerk step ``minimum_jerk(t, t0, D, 0, p' - p)``, then p = p' and
     t0 += D + U(pause_range_s). Finally N(0, noise_rad^2) noise is added to every entry.
+    Each step is evaluated only on the samples its reach moves (it is exactly 0 before and
+    exactly p' - p after, with the same sums bit for bit), so the cost is O(num_samples *
+    num_joints), plus a constant per reach.
 
     Random numbers come from one ``np.random.default_rng(seed)`` in this order: for joint 0,
     (duration, target offset, pause) per reach; then joint 1, ...; then the noise array of
@@ -170,17 +173,46 @@ def synthetic_joint_motion(
     t = np.arange(num_samples) * dt_s
     q = np.zeros((num_samples, num_joints))
     for j in range(num_joints):
-        # The additions below happen in the same order as in the two generators this
-        # replaces (start value first, then each step), so the sums are bitwise equal.
+        # Bitwise the same as adding every reach's step to every sample, in order
+        # (q[:, j] += minimum_jerk(t, t0, D, 0.0, step) per reach, as the generators this
+        # replaces did), but evaluating each step only where it can be neither 0 nor ``step``:
+        # * at t_k <= t0 a step is exactly +0.0 (s = 0), and adding +0.0 changes nothing but
+        #   the sign of a -0.0;
+        # * once s >= 1 it is exactly ``step``; and s >= 1 at every t_k > t0_next, since
+        #   t0_next >= t0 + D rounded (the pause is >= 0);
+        # so sample k holds ``prefix`` (the start value plus the steps of the reaches before
+        # the last one with t0 < t_k, added in the same order), plus that reach's step at t_k,
+        # plus +0.0 if a later reach exists.
+        column = q[:, j]
         position, t0 = joint_offset_step_rad * j, 0.0
-        q[:, j] = position
+        column[:] = position
+        prefix, last_start = position, None
         while t0 < t[-1]:
             duration = rng.uniform(duration_low, duration_high)
             target = position + rng.uniform(-reach_rad, reach_rad)
             if position_limit_rad is not None:
                 target = np.clip(target, -position_limit_rad, position_limit_rad)
-            q[:, j] += minimum_jerk(t, t0, duration, 0.0, target - position)
-            position, t0 = target, t0 + duration + rng.uniform(pause_low, pause_high)
+            step = target - position
+            position, t0_next = target, t0 + duration + rng.uniform(pause_low, pause_high)
+            # This reach is the last one started before t_k for start <= k < end, i.e.
+            # t0 < t_k <= t0_next (for the last reach: every t_k > t0, as t0_next >= t[-1]).
+            start = int(np.searchsorted(t, t0, side="right"))
+            end = int(np.searchsorted(t, t0_next, side="right"))
+            # Evaluate the step on start <= k < stop, where sample stop - 1 already has s >= 1
+            # (or stop = end); s is nondecreasing in t_k, so it is exactly ``step`` after that.
+            # The first t_k > t0 + D (rounded) has s >= 1, so the loop is only a safeguard.
+            first_at_end = int(np.searchsorted(t, t0 + duration, side="left"))
+            stop = min(max(first_at_end + 2, start + 1), end)
+            while stop < end and not (t[stop - 1] - t0) / duration >= 1.0:  # minimum_jerk's s
+                stop += 1
+            if start < stop:
+                column[start:stop] = prefix + minimum_jerk(t[start:stop], t0, duration, 0.0, step)
+            prefix = prefix + step
+            column[stop:end] = prefix
+            last_start, t0 = start, t0_next
+        if last_start is not None:
+            # The later reaches' +0.0 steps at the samples before the last reach's start.
+            column[:last_start] += 0.0
     return q + noise_rad * rng.standard_normal(q.shape)
 
 

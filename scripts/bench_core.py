@@ -40,22 +40,12 @@ MAX_ACCELERATION = 0.05
 MAX_JERK = 0.1
 
 
-LARGEST_GENERATED_N = 100_000
-"""Above this N the recording is the N = 10⁵ one played forwards and backwards (continuous):
-``synthetic_joint_motion`` costs O(N × reaches), 100 s at 10⁵ and far more at 10⁶."""
-
-
 def synthetic_operator(num_samples: int, num_joints: int, *, dt_s=DEFAULT_DT_S, seed=0):
     """Minimum-jerk reaches of ±0.4 rad lasting 2–6 s with pauses, plus N(0, (1e-3 rad)²).
 
-    Targets are clipped to ±1.5 rad; every joint starts at 0 (see ``synthetic_joint_motion``).
-    Above :data:`LARGEST_GENERATED_N` samples: the recording of that size (same seed),
-    forwards then backwards, repeated and cut to ``num_samples``.
+    Targets are clipped to ±1.5 rad; every joint starts at 0 (see ``synthetic_joint_motion``,
+    O(N): 0.9 s at N = 10⁵, 6 joints).
     """
-    if num_samples > LARGEST_GENERATED_N:
-        base = synthetic_operator(LARGEST_GENERATED_N, num_joints, dt_s=dt_s, seed=seed)
-        repeats = -(-num_samples // (2 * LARGEST_GENERATED_N))
-        return np.concatenate([base, base[::-1]] * repeats)[:num_samples]
     return synthetic_joint_motion(num_samples, num_joints, dt_s=dt_s, noise_rad=1e-3, seed=seed,
                                   position_limit_rad=1.5)
 

@@ -473,16 +473,3 @@ def test_a_solver_that_gives_up_exits_2_naming_the_joints_and_writes_nothing(
     assert "Offline-CKS failed" in stderr and "banded-ip: max_iterations" in stderr
     assert len(stderr.strip().splitlines()) == 1
     assert not out.exists()
-
-
-def test_bench_data_above_the_generated_size_is_the_recording_forwards_and_backwards(
-        monkeypatch):
-    import telesmooth.scripts.bench_core as bench
-
-    monkeypatch.setattr(bench, "LARGEST_GENERATED_N", 50)
-    z = bench.synthetic_operator(230, 2, seed=5)
-    base = bench.synthetic_operator(50, 2, seed=5)
-    assert z.shape == (230, 2)
-    np.testing.assert_array_equal(z[:50], base)
-    np.testing.assert_array_equal(z[50:100], base[::-1])      # continuous at the turn
-    np.testing.assert_array_equal(z[200:230], base[:30])

@@ -2,10 +2,13 @@
 
 import dataclasses
 import importlib
+import itertools
 
 import numpy as np
 import pytest
 import scipy.signal
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from telesmooth.arms.planar import (
     AIR_BEARING_ARM,
@@ -59,6 +62,47 @@ def _frozen_bench_synthetic_operator(num_samples, num_joints, *, dt_s=0.25, seed
             s = np.clip((t - t0) / duration, 0.0, 1.0)
             q[:, j] += step * (10 * s**3 - 15 * s**4 + 6 * s**5)
     return q + 1e-3 * rng.standard_normal(q.shape)
+
+
+# --- frozen copy of synthetic_joint_motion as it was before it became O(N) (do not edit) ---
+# Its loop body, verbatim, adds every reach's step to the whole time grid: O(N x reaches).
+# The O(N) version must give the same arrays bit for bit (signs of zeros included).
+
+
+def _frozen_minimum_jerk(t, t0, duration, start, end):
+    s = np.clip((np.asarray(t) - t0) / duration, 0.0, 1.0)
+    start = np.asarray(start)
+    end = np.asarray(end)
+    point_ndim = np.broadcast(start, end).ndim
+    if point_ndim:
+        s = s.reshape(s.shape + (1,) * point_ndim)
+    position = start + (end - start) * (10 * s**3 - 15 * s**4 + 6 * s**5)
+    return np.where(s >= 1.0, end, position)
+
+
+def _frozen_joint_motion_every_reach_on_every_sample(
+    num_samples, num_joints, *, dt_s=0.25, noise_rad=1e-3, seed=0, reach_rad=0.4,
+    reach_duration_range_s=(2.0, 6.0), pause_range_s=(0.0, 2.0), joint_offset_step_rad=0.0,
+    position_limit_rad=None,
+):
+    duration_low, duration_high = (float(v) for v in reach_duration_range_s)
+    pause_low, pause_high = (float(v) for v in pause_range_s)
+    rng = np.random.default_rng(seed)
+    t = np.arange(num_samples) * dt_s
+    q = np.zeros((num_samples, num_joints))
+    for j in range(num_joints):
+        # The additions below happen in the same order as in the two generators this
+        # replaces (start value first, then each step), so the sums are bitwise equal.
+        position, t0 = joint_offset_step_rad * j, 0.0
+        q[:, j] = position
+        while t0 < t[-1]:
+            duration = rng.uniform(duration_low, duration_high)
+            target = position + rng.uniform(-reach_rad, reach_rad)
+            if position_limit_rad is not None:
+                target = np.clip(target, -position_limit_rad, position_limit_rad)
+            q[:, j] += _frozen_minimum_jerk(t, t0, duration, 0.0, target - position)
+            position, t0 = target, t0 + duration + rng.uniform(pause_low, pause_high)
+    return q + noise_rad * rng.standard_normal(q.shape)
 
 
 # Every (num_samples, num_joints, dt, seed) the test suite passes to operator_recording, plus
@@ -121,6 +165,98 @@ def test_bench_core_synthetic_operator_is_the_frozen_generator(num_samples, num_
 
     expected = _frozen_bench_synthetic_operator(num_samples, num_joints, seed=seed)
     assert np.array_equal(synthetic_operator(num_samples, num_joints, seed=seed), expected)
+
+
+def _assert_bitwise_equal(actual, expected):
+    assert actual.shape == expected.shape and actual.dtype == expected.dtype == np.float64
+    assert np.all(np.isfinite(expected))
+    # view(uint64) also tells -0.0 from +0.0, which np.array_equal does not.
+    np.testing.assert_array_equal(actual.view(np.uint64), expected.view(np.uint64))
+
+
+# (reach_duration_range_s, pause_range_s) of the grid below.
+JOINT_MOTION_RANGES = [
+    ((2.0, 6.0), (0.0, 2.0)),  # the defaults
+    ((2.0, 6.0), (0.0, 0.0)),  # back to back: the next reach starts where one ends
+    ((0.01, 0.02), (0.0, 2.0)),  # reaches shorter than a sample
+    ((0.01, 0.02), (0.0, 0.0)),  # several reaches between two samples
+    # Reach ends and starts on grid points or an ulp off them; at dt 0.1 and 0.3 some
+    # sample t_k = t0_next = t0 + D (rounded) still has (t_k - t0) / D < 1.
+    ((0.3, 0.3), (0.0, 0.0)),
+    ((0.1, 0.1), (0.1, 0.1)),
+    ((0.25, 0.25), (0.0, 0.0)),
+]
+
+# (joint_offset_step_rad, position_limit_rad, noise_rad): noise-free runs so that no bit of
+# the motion can hide under the noise, and one with noise for the draw order.
+JOINT_MOTION_VARIANTS = [(0.1, None, 1e-3), (0.1, None, 0.0), (-0.05, 0.3, 0.0)]
+
+
+@pytest.mark.parametrize("dt_s", [0.25, 0.01, 0.1, 0.3])
+@pytest.mark.parametrize("reach_duration_range_s, pause_range_s", JOINT_MOTION_RANGES,
+                         ids=[f"reach{d}-pause{p}" for d, p in JOINT_MOTION_RANGES])
+def test_joint_motion_equals_frozen_every_reach_sum_bitwise(
+    dt_s, reach_duration_range_s, pause_range_s
+):
+    # Longest recording with at most ~150 reaches per joint (the frozen version costs
+    # N x reaches), up to 2500 samples.
+    mean_cycle_s = 0.5 * (sum(reach_duration_range_s) + sum(pause_range_s))
+    longest = min(2500, 2 + int(150 * mean_cycle_s / dt_s))
+    for seed, num_samples, (offset, limit, noise) in itertools.product(
+        (0, 1, 2), sorted({1, 2, 3, min(40, longest), longest}), JOINT_MOTION_VARIANTS
+    ):
+        kwargs = dict(dt_s=dt_s, noise_rad=noise, seed=seed,
+                      reach_duration_range_s=reach_duration_range_s, pause_range_s=pause_range_s,
+                      joint_offset_step_rad=offset, position_limit_rad=limit)
+        expected = _frozen_joint_motion_every_reach_on_every_sample(num_samples, 3, **kwargs)
+        _assert_bitwise_equal(synthetic_joint_motion(num_samples, 3, **kwargs), expected)
+
+
+def test_joint_motion_equals_frozen_every_reach_sum_bitwise_at_the_bench_rate():
+    # 10 ms samples as in the benchmark's online stream, 6 joints, clipped targets.
+    kwargs = dict(dt_s=0.01, seed=7, position_limit_rad=1.5)
+    expected = _frozen_joint_motion_every_reach_on_every_sample(20_000, 6, **kwargs)
+    _assert_bitwise_equal(synthetic_joint_motion(20_000, 6, **kwargs), expected)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_joint_motion_keeps_the_sign_of_zero_of_the_every_reach_sum(seed):
+    # No motion and no noise: every entry is a zero. Joint 0 starts at -0.1 * 0 = -0.0, which
+    # the frozen version's later steps (+0.0 before their reach starts) turn into +0.0; the
+    # O(N) version has to add that +0.0 too.
+    kwargs = dict(reach_rad=0.0, noise_rad=0.0, seed=seed, joint_offset_step_rad=-0.1)
+    expected = _frozen_joint_motion_every_reach_on_every_sample(12, 2, **kwargs)
+    _assert_bitwise_equal(synthetic_joint_motion(12, 2, **kwargs), expected)
+
+
+@st.composite
+def _joint_motion_arguments(draw):
+    dt_s = draw(st.sampled_from([0.25, 0.01, 0.1, 0.3]) | st.floats(1e-3, 1.0))
+    duration_low = draw(st.sampled_from([0.01, 0.1, 0.3, 2.0]) | st.floats(1e-3, 3.0))
+    duration_high = duration_low * draw(st.sampled_from([1.0, 2.0]) | st.floats(1.0, 4.0))
+    pause_low = draw(st.sampled_from([0.0, 0.1]) | st.floats(0.0, 1.0))
+    pause_high = pause_low + draw(st.sampled_from([0.0, 2.0]) | st.floats(0.0, 2.0))
+    # At most ~400 reaches per joint, so that the frozen version stays fast.
+    longest = min(600, 2 + int(400 * (duration_low + pause_low) / dt_s))
+    return draw(st.integers(1, longest)), draw(st.integers(1, 3)), dict(
+        dt_s=dt_s,
+        noise_rad=draw(st.sampled_from([0.0, 1e-3])),
+        seed=draw(st.integers(0, 2**32 - 1)),
+        reach_rad=draw(st.sampled_from([0.0, 0.4]) | st.floats(0.0, 2.0)),
+        reach_duration_range_s=(duration_low, duration_high),
+        pause_range_s=(pause_low, pause_high),
+        joint_offset_step_rad=draw(st.sampled_from([0.0, 0.1, -0.1]) | st.floats(-1.0, 1.0)),
+        position_limit_rad=draw(st.none() | st.sampled_from([0.3, 1.5]) | st.floats(0.01, 2.0)),
+    )
+
+
+@settings(derandomize=True, database=None, deadline=None, max_examples=200,
+          suppress_health_check=[HealthCheck.too_slow])
+@given(_joint_motion_arguments())
+def test_joint_motion_equals_frozen_every_reach_sum_bitwise_fuzzed(arguments):
+    num_samples, num_joints, kwargs = arguments
+    expected = _frozen_joint_motion_every_reach_on_every_sample(num_samples, num_joints, **kwargs)
+    _assert_bitwise_equal(synthetic_joint_motion(num_samples, num_joints, **kwargs), expected)
 
 
 def test_position_limit_clips_every_target():
