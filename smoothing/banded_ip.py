@@ -132,10 +132,12 @@ def _band_of(matrix: sparse.spmatrix, half_bandwidth: int) -> np.ndarray:
     on the lower storage as on the upper one (measured at N = 10⁵)."""
     matrix = sparse.csr_matrix(matrix)
     n = matrix.shape[0]
-    band = np.zeros((n, half_bandwidth + 1))
-    for offset in range(half_bandwidth + 1):
-        band[:n - offset, offset] = matrix.diagonal(-offset)     # M[j + offset, j]
-    return band
+    width = half_bandwidth + 1
+    row = np.repeat(np.arange(n), np.diff(matrix.indptr))
+    offset = row - matrix.indices                                 # M[j + offset, j]
+    inside = (offset >= 0) & (offset <= half_bandwidth)
+    flat = matrix.indices[inside] * width + offset[inside]        # duplicates are summed
+    return np.bincount(flat, weights=matrix.data[inside], minlength=n * width).reshape(n, width)
 
 
 def _half_bandwidth(a: sparse.csr_matrix, f: sparse.csr_matrix) -> int:
@@ -195,7 +197,8 @@ class BandedQp:
             keep[:, offset][self.fixed] = False                        # M[v + offset, v]
             keep[:n - offset, offset][self.fixed[offset:]] = False     # M[v, v − offset]
         self.band_keep = keep
-        self.normal_band = _band_of(self.normal, u) * keep
+        self.normal_band = _band_of(self.normal, u)
+        self.normal_band *= keep
         self.normal_band[self.fixed, 0] = 1.0
         f = self.f
         counts = np.diff(f.indptr)
@@ -221,10 +224,10 @@ class BandedQp:
         # Band positions touched by F (a few per sample) and the sparse map from the row
         # weights D to their entries: the band is assembled by one sparse product and a
         # scatter (a bincount over the whole band cost ~45 ms per step at N = 10⁵).
-        touched = np.bincount(self.pair_flat, minlength=self.band_size) > 0
+        touched = np.zeros(self.band_size, dtype=bool)
+        touched[self.pair_flat] = True
         self.pair_positions = np.flatnonzero(touched)
-        index_of = np.cumsum(touched) - 1          # a position's index among the touched ones
-        position_of_pair = index_of[self.pair_flat]
+        position_of_pair = np.searchsorted(self.pair_positions, self.pair_flat)
         self.pair_map = sparse.csr_matrix(
             (self.pair_coef, (position_of_pair, self.pair_rows)),
             shape=(self.pair_positions.size, self.m))
