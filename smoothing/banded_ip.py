@@ -58,6 +58,9 @@ LINEAR_SOLVERS = ("auto", "cholesky", "qr")
 _CHOLESKY_CONDITION_LIMIT = 1e12
 # Fraction of the distance to the boundary a step may go.
 _STEP_FRACTION = 0.99
+_START_MULTIPLIER = 0.01
+# Rows per chunk where a pass over a whole matrix would allocate large temporaries.
+_CHUNK_ROWS = 1 << 15
 # Relative round-off allowed in a limit row's value F y (see ``run``).
 _PRIMAL_ROUND_OFF = 1e-13
 
@@ -133,11 +136,23 @@ def _band_of(matrix: sparse.spmatrix, half_bandwidth: int) -> np.ndarray:
     matrix = sparse.csr_matrix(matrix)
     n = matrix.shape[0]
     width = half_bandwidth + 1
-    row = np.repeat(np.arange(n), np.diff(matrix.indptr))
-    offset = row - matrix.indices                                 # M[j + offset, j]
-    inside = (offset >= 0) & (offset <= half_bandwidth)
-    flat = matrix.indices[inside] * width + offset[inside]        # duplicates are summed
-    return np.bincount(flat, weights=matrix.data[inside], minlength=n * width).reshape(n, width)
+    band = np.zeros(n * width)
+    indptr, indices, data = matrix.indptr, matrix.indices, matrix.data
+    # In chunks of rows: the temporaries stay small and are reused (first touches of fresh
+    # memory, not arithmetic, dominated: 5.2 s in one pass at N = 10⁶ on these machines).
+    for start in range(0, n, _CHUNK_ROWS):
+        stop = min(n, start + _CHUNK_ROWS)
+        lo, hi = indptr[start], indptr[stop]
+        row = np.repeat(np.arange(start, stop), np.diff(indptr[start:stop + 1]))
+        col = indices[lo:hi]
+        offset = row - col                                        # M[j + offset, j]
+        inside = (offset >= 0) & (offset <= half_bandwidth)
+        # Columns of these rows' lower entries lie in [start − u, stop).
+        base = max(0, start - half_bandwidth) * width
+        flat = col[inside] * width + offset[inside] - base        # duplicates are summed
+        local = np.bincount(flat, weights=data[lo:hi][inside], minlength=0)
+        band[base:base + local.size] += local
+    return band.reshape(n, width)
 
 
 def _half_bandwidth(a: sparse.csr_matrix, f: sparse.csr_matrix) -> int:
@@ -432,10 +447,13 @@ class BandedQp:
         if m == 0:
             return self._unconstrained(y)
         fy = self.f @ y
+        # Start: slacks at least 1 (the rows are normalised to ±1), multipliers 0.01. With
+        # multipliers 1 the method took ~14 % more iterations (182 against 157 Newton steps
+        # over 6 joints × 2 modes at N = 10⁴; 16–17 against 14–15 per joint at N = 10⁵).
         s_u = np.maximum(self.upper - fy, 1.0)
         s_l = np.maximum(fy - self.lower, 1.0)
-        lam_u = np.ones(m)
-        lam_l = np.ones(m)
+        lam_u = np.full(m, _START_MULTIPLIER)
+        lam_l = np.full(m, _START_MULTIPLIER)
         status, iteration = "max_iterations", 0
         measures = (math.inf, math.inf, math.inf)
         for iteration in range(1, opts.max_iterations + 1):
