@@ -66,6 +66,7 @@ from telesmooth.diagrams.scenario import Scenario, make_haptic_recording
 from telesmooth.diagrams.simulation import sample_at, tool_positions
 from telesmooth.diagrams.teleoperation import scenario_smoother_config
 from telesmooth.smoothing.methods import SmoothingSettings, smooth_recording
+from telesmooth.smoothing.offline import OFFLINE_SOLVERS
 from telesmooth.smoothing.metrics import (
     finite_differences,
     improvement_ratio,
@@ -208,22 +209,28 @@ def run_summary(metrics: dict) -> dict:
     }
 
 
-def method_settings(scenario: Scenario, method: str) -> tuple[str, SmoothingSettings]:
+def method_settings(scenario: Scenario, method: str, offline_solver: str = "drake"
+                    ) -> tuple[str, SmoothingSettings]:
     """The ``smooth_recording`` method and settings a comparison method uses on ``scenario``.
 
     All methods share σ_0, r (divided by the samples per period under the period mean), L,
-    a_max, j_max and the reduced-Q settings of ``scenario.smoother``.
+    a_max, j_max and the reduced-Q settings of ``scenario.smoother``. ``offline_solver``
+    ("drake" or "banded-ip", :data:`~telesmooth.smoothing.offline.OFFLINE_SOLVERS`) solves the
+    Offline-CKS methods.
 
     Raises:
-        ValueError: For an unknown method.
+        ValueError: For an unknown method or solver.
     """
     if method not in COMPARE_METHODS:
         raise ValueError(f"method = {method!r} must be one of {COMPARE_METHODS}")
+    if offline_solver not in OFFLINE_SOLVERS:
+        raise ValueError(f"offline_solver = {offline_solver!r} must be one of {OFFLINE_SOLVERS}")
     config = scenario_smoother_config(scenario)
     settings = SmoothingSettings(
         max_acceleration=config.max_acceleration_rad_per_s2,
         max_jerk=config.max_jerk_rad_per_s3, sigma=config.sigma, r=config.r, lag=config.lag,
-        fixed_lag_method=config.fixed_lag_method, reduced_q=config.reduced_q)
+        fixed_lag_method=config.fixed_lag_method, reduced_q=config.reduced_q,
+        offline_solver=offline_solver)
     if method == "offline-cks-trajectory":
         return "offline-cks", dataclasses.replace(settings, constraint="trajectory",
                                                   rest_at_end=True)
@@ -374,7 +381,8 @@ def response_latency(operator_tool_m, t_s, tracker_t_s, tool_position_m, *,
 
 
 def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettings | None = None,
-               base_method: str | None = None, label: str | None = None) -> MethodRun:
+               base_method: str | None = None, label: str | None = None,
+               offline_solver: str = "drake") -> MethodRun:
     """Smooths the operator's samples with one method and plays the packets through the plant.
 
     Args:
@@ -383,6 +391,7 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
         settings, base_method: Override the ``smooth_recording`` settings and method (e.g. a
             sensitivity study of Online-CKS); both default to :func:`method_settings`.
         label: The run's name (default ``method``).
+        offline_solver: Solver of the Offline-CKS methods (see :func:`method_settings`).
 
     Returns:
         The run; ``metrics["improvement_ratio_percent"]`` is NaN until the caller sets it
@@ -401,7 +410,7 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
     ramp = setup.ramp_s
     label = label or method
     started = time.perf_counter()
-    default_method, default_settings = method_settings(scenario, method)
+    default_method, default_settings = method_settings(scenario, method, offline_solver)
     base_method = base_method or default_method
     settings = settings or default_settings
     try:
@@ -494,7 +503,8 @@ def set_improvement_ratios(runs: dict, reference: str = _REFERENCE) -> None:
 
 
 def compare_methods(scenario: Scenario, methods=COMPARE_METHODS, *,
-                    progress: Callable[[str], None] | None = None) -> Comparison:
+                    progress: Callable[[str], None] | None = None,
+                    offline_solver: str = "drake") -> Comparison:
     """Runs each method on the scenario's recorded session through the same plant.
 
     Args:
@@ -502,6 +512,8 @@ def compare_methods(scenario: Scenario, methods=COMPARE_METHODS, *,
         methods: Names from :data:`COMPARE_METHODS`; ``original`` is always run (it is the
             reference of P) and comes first.
         progress: Called with a one-line message per method.
+        offline_solver: Solver of the Offline-CKS methods: "drake" (the MathematicalProgram)
+            or "banded-ip" (the banded interior point; the same optimum to ~1e-6 rad).
 
     Returns:
         The comparison. A method that fails (e.g. Offline-CKS reports no solution) raises.
@@ -516,12 +528,14 @@ def compare_methods(scenario: Scenario, methods=COMPARE_METHODS, *,
         raise ValueError(f"methods {unknown!r} are not among {COMPARE_METHODS}")
     if len(set(methods)) != len(methods):
         raise ValueError(f"methods = {methods!r} repeats a method")
+    if offline_solver not in OFFLINE_SOLVERS:
+        raise ValueError(f"offline_solver = {offline_solver!r} must be one of {OFFLINE_SOLVERS}")
     methods = (_REFERENCE,) + tuple(m for m in methods if m != _REFERENCE)
     say = progress or (lambda message: None)
     setup = prepare_comparison(scenario)
     runs = {}
     for number, method in enumerate(methods, start=1):
-        run = run_method(setup, method)
+        run = run_method(setup, method, offline_solver=offline_solver)
         runs[method] = run
         set_improvement_ratios({_REFERENCE: runs[_REFERENCE], method: run})
         say(f"[{number}/{len(methods)}] {method}: smoothed in {run.timings_s['smooth']:.2f} s, "

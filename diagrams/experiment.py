@@ -54,6 +54,7 @@ from telesmooth.diagrams.comparison import (
 from telesmooth.diagrams.scenario import Scenario
 from telesmooth.smoothing.metrics import finite_differences
 from telesmooth.smoothing.methods import smooth_recording
+from telesmooth.smoothing.offline import OFFLINE_SOLVERS
 from telesmooth.smoothing.offline import with_rest_history
 from telesmooth.smoothing.reduced_q import DEFAULT_SIGMA_MIN_RATIO
 
@@ -106,6 +107,8 @@ class ExperimentConfig:
         sigma_min_ratios: σ_min / σ_0 values of the study (the default is 2.5e-4).
         rhos: Multiplicative reduced-Q steps ρ of the study (the default is 0.8).
         c8_shapes: Shapes of the C8 study (all seven demonstrations of each, in order).
+        offline_solver: Solver of the Offline-CKS methods, "drake" (the MathematicalProgram)
+            or "banded-ip" (the banded interior point).
     """
 
     shapes: tuple[str, ...] = LASA_SHAPES
@@ -118,6 +121,7 @@ class ExperimentConfig:
     sigma_min_ratios: tuple[float, ...] = (2.5e-6, 2.5e-2, 0.25)
     rhos: tuple[float, ...] = (0.5, 0.95)
     c8_shapes: tuple[str, ...] = LASA_SHAPES
+    offline_solver: str = "drake"
 
     def __post_init__(self) -> None:
         for field in ("shapes", "sensitivity_shapes", "c8_shapes"):
@@ -129,6 +133,9 @@ class ExperimentConfig:
         if bad or not self.demos:
             raise ValueError(f"demos = {list(self.demos)!r} must be indices 0–"
                              f"{LASA_DEMOS_PER_SHAPE - 1}")
+        if self.offline_solver not in OFFLINE_SOLVERS:
+            raise ValueError(f"offline_solver = {self.offline_solver!r} must be one of "
+                             f"{OFFLINE_SOLVERS}")
         unknown = [m for m in self.methods if m not in EXPERIMENT_METHODS]
         if unknown:
             raise ValueError(f"methods {unknown!r} are not among {EXPERIMENT_METHODS}")
@@ -217,8 +224,8 @@ def make_tasks(config: ExperimentConfig) -> list[ExperimentTask]:
     return tasks
 
 
-def _settings(setup, task: ExperimentTask):
-    base_method, settings = method_settings(setup.scenario, task.method)
+def _settings(setup, task: ExperimentTask, offline_solver: str = "drake"):
+    base_method, settings = method_settings(setup.scenario, task.method, offline_solver)
     if task.study in ("main", "reference"):
         return base_method, settings
     config = settings.reduced_q
@@ -296,7 +303,7 @@ def run_task(task: ExperimentTask, base: Scenario, config: ExperimentConfig) -> 
     else:
         scenario = experiment_scenario(base, config, task.shape, task.demo, task.seed)
         setup = prepare_comparison(scenario, _samples(scenario))
-        base_method, settings = _settings(setup, task)
+        base_method, settings = _settings(setup, task, config.offline_solver)
         run = run_method(setup, task.method, settings=settings, base_method=base_method,
                          label=task.label)
         record["metrics"] = {**run_summary(run.metrics),

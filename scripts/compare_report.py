@@ -214,11 +214,12 @@ def _report_text(comparison: Comparison, rows, figures) -> str:
 
 
 def write_comparison_report(out_dir, scenario, *, methods=COMPARE_METHODS,
-                            progress=_log) -> Path:
+                            progress=_log, offline_solver="drake") -> Path:
     """Runs :func:`compare_methods` and writes the report folder; returns report.md's path."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    comparison = compare_methods(scenario, methods, progress=progress)
+    comparison = compare_methods(scenario, methods, progress=progress,
+                                 offline_solver=offline_solver)
     rows = comparison.table()
     data = {
         "scenario": {"arm": scenario.arm, "haptic_source": scenario.haptic.source,

@@ -338,3 +338,31 @@ def test_band_helpers_against_dense_matrices(monkeypatch, chunk_rows):
     assert _max_step(values, steps) == brute
     assert _max_step((np.ones(3),), (np.ones(3),)) == np.inf
     assert _max_step((np.zeros(0),), (np.zeros(0),)) == np.inf
+
+
+def test_a_breakdown_within_ten_times_the_gap_tolerance_ends_the_solve(monkeypatch):
+    """On this recording (the benchmark's N = 1000, joint 1, trajectory mode) the normal
+    equations lose definiteness one step before the gap tolerance: the iterate, already within
+    10× of it, is returned instead of finishing by the slow QR route, and it is the optimum
+    that the QR route reaches, to 1e-7 rad."""
+    from telesmooth.datasets.synthetic import synthetic_joint_motion
+    from telesmooth.smoothing import banded_ip
+    from telesmooth.smoothing.banded_ip import BandedQp
+    from telesmooth.smoothing.model import DEFAULT_DT_S, DEFAULT_R, DEFAULT_SIGMA
+
+    z = synthetic_joint_motion(1000, 6, dt_s=DEFAULT_DT_S, noise_rad=1e-3, seed=1000,
+                               position_limit_rad=1.5)[:, 1]
+    model = JerkModel.make(DEFAULT_DT_S, DEFAULT_SIGMA, DEFAULT_R, num_joints=1)
+    problem = banded_problem(z, model, 0, rest_prior(z[:1], model), z[0], 0.05, 0.1, np.inf,
+                             "trajectory", False)
+    options = BandedIpOptions()
+    qp = BandedQp(*problem, options)
+    stopped = qp.run(qp.unconstrained_optimum())
+    assert stopped.converged and stopped.linear_solver == "cholesky"
+    assert options.gap_tolerance < stopped.gap <= 10 * options.gap_tolerance
+    monkeypatch.setattr(banded_ip, "_ACCEPTABLE_GAP_FACTOR", 1.0)
+    qp = BandedQp(*problem, options)
+    finished = qp.run(qp.unconstrained_optimum())
+    assert finished.converged and finished.linear_solver == "cholesky+qr"
+    assert finished.gap <= options.gap_tolerance
+    np.testing.assert_allclose(stopped.y[0::4], finished.y[0::4], rtol=0, atol=1e-7)

@@ -121,9 +121,27 @@ def test_residual_motion_and_table_rows(scenario, comparison):
     assert len(ends) == 1
 
 
+def test_the_banded_solver_sends_the_same_offline_cks_packets(scenario, comparison):
+    """--solver banded-ip: the Offline-CKS packets are the MathematicalProgram's to 1e-6 rad,
+    and the details say which solver ran."""
+    banded = compare_methods(scenario, ("original", "offline-cks-trajectory"),
+                             offline_solver="banded-ip")
+    drake_packets = comparison.runs["offline-cks-trajectory"].packets
+    np.testing.assert_allclose(banded.runs["offline-cks-trajectory"].packets, drake_packets,
+                               rtol=0, atol=1e-6)
+    base, settings = method_settings(scenario, "offline-cks-trajectory", "banded-ip")
+    assert settings.offline_solver == "banded-ip"
+    assert smooth_recording(comparison.q_original, comparison.period_s, base, settings,
+                            joint_names=comparison.joint_names).details["solver"] == "banded-ip"
+
+
 def test_bad_methods_and_live_operator_are_refused(scenario):
     with pytest.raises(ValueError, match="'smoothest'"):
         compare_methods(scenario, ("original", "smoothest"))
+    with pytest.raises(ValueError, match="offline_solver = 'cvxpy'"):
+        compare_methods(scenario, ("original",), offline_solver="cvxpy")
+    with pytest.raises(ValueError, match="offline_solver = 'cvxpy'"):
+        method_settings(scenario, "offline-cks", "cvxpy")
     with pytest.raises(ValueError, match="repeats"):
         compare_methods(scenario, ("bmfls", "bmfls"))
     live = load_scenario(scenario_text="{haptic: {source: lcm}}")
@@ -154,6 +172,21 @@ def test_cli_writes_the_report(tmp_path, capsys):
     start = np.array(rows[1][1 + len(joints):1 + 2 * len(joints)], dtype=float)
     np.testing.assert_allclose(start, np.array(rows[3][1 + len(joints):1 + 2 * len(joints)],
                                                dtype=float))
+
+
+def test_cli_solver_reaches_the_comparison(tmp_path, monkeypatch):
+    import telesmooth.scripts.compare_report as compare_report
+
+    seen = {}
+
+    def fake(out, scenario, *, methods, offline_solver):
+        seen.update(methods=methods, offline_solver=offline_solver)
+        return out / "report.md"
+
+    monkeypatch.setattr(compare_report, "write_comparison_report", fake)
+    code = main(["compare", "--methods", "offline-cks", "--solver", "banded-ip", "--out",
+                 str(tmp_path / "x")])
+    assert code == 0 and seen == {"methods": ("offline-cks",), "offline_solver": "banded-ip"}
 
 
 def test_cli_unknown_method_exits_2(tmp_path, capsys):

@@ -90,6 +90,7 @@ def test_the_grid_has_every_cell_once_in_report_order():
     ({"methods": ("kalman",)}, r"methods \['kalman'\]"),
     ({"plant_time_step_s": 0.0}, r"plant_time_step_s = 0.0"),
     ({"rhos": (1.2,)}, r"rhos: 1.2"),
+    ({"offline_solver": "cvxpy"}, r"offline_solver = 'cvxpy' must be one of"),
 ])
 def test_bad_configuration_is_named(overrides, message):
     with pytest.raises(ValueError, match=message):
@@ -189,13 +190,15 @@ def test_results_do_not_depend_on_the_number_of_workers(base):
 def test_cli_writes_the_report_and_names_bad_shapes(tmp_path, capsys):
     out = tmp_path / "exp"
     status = main(["experiment", "--scenario-text", FAST, "--out", str(out), "--shapes",
-                   "Angle", "--methods", "original,kf,ruckig", "--sensitivity-shapes", "Angle",
-                   "--c8-shapes", "none", "--workers", "0", "--settle", "2"])
+                   "Angle", "--methods", "original,kf,offline-cks,ruckig",
+                   "--sensitivity-shapes", "Angle", "--c8-shapes", "none", "--workers", "0",
+                   "--settle", "2", "--solver", "banded-ip"])
     captured = capsys.readouterr()
     assert status == 0, captured.err
     assert "report:" in captured.out
     data = json.loads((out / "experiment.json").read_text())
-    assert set(data["summary"]["main"]) == {"original", "kf", "ruckig"}
+    assert set(data["summary"]["main"]) == {"original", "kf", "offline-cks", "ruckig"}
+    assert data["config"]["offline_solver"] == "banded-ip"
     assert {"C1", "C8"} <= set(data["claims"])
     assert data["claims"]["C8"]["verdict"] == "not tested"
     sensitivity = data["summary"]["sensitivity"]
