@@ -318,11 +318,11 @@ class BandedQp:
     def factorize(self, weights, switch_to_qr: bool = True):
         """Factorises AᵀA + Fᵀ diag(weights) F; returns solve(rhs_a, rhs_f) → Δ (n,) with
         (AᵀA + Fᵀ D F) Δ = Aᵀ rhs_a + Fᵀ rhs_f on the free entries and Δ = 0 on the fixed.
-        When the Cholesky route breaks down it goes on by the QR route, or with
-        ``switch_to_qr=False`` raises LinAlgError."""
+        When the Cholesky route breaks down it tries a regularised factor and then goes on
+        by the QR route; with ``switch_to_qr=False`` it raises LinAlgError at once."""
         if self.route == "cholesky":
             try:
-                return self._cholesky_solver(weights)
+                return self._cholesky_solver(weights, regularise=switch_to_qr)
             except LinAlgError:
                 if not switch_to_qr:
                     raise
@@ -336,7 +336,7 @@ class BandedQp:
         self.route = "cholesky+qr"
         self._prepare_qr()
 
-    def _cholesky_solver(self, weights):
+    def _cholesky_solver(self, weights, regularise: bool = True):
         try:
             if self._normal_factor is not None and not np.any(weights):
                 factor = self._normal_factor     # AᵀA alone, factorised by _choose_route
@@ -344,6 +344,8 @@ class BandedQp:
                 factor = cholesky_lower_band(self._band(weights), overwrite=True)
             shifted = False
         except LinAlgError:
+            if not regularise:
+                raise
             # Static regularisation: factor M + εI, then conjugate gradients on M with that
             # factor as the preconditioner.
             band = self._band(weights)
