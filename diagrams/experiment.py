@@ -54,8 +54,7 @@ from telesmooth.diagrams.comparison import (
 from telesmooth.diagrams.scenario import Scenario
 from telesmooth.smoothing.metrics import finite_differences
 from telesmooth.smoothing.methods import smooth_recording
-from telesmooth.smoothing.offline import OFFLINE_SOLVERS
-from telesmooth.smoothing.offline import with_rest_history
+from telesmooth.smoothing.offline import OFFLINE_SOLVERS, with_rest_history
 from telesmooth.smoothing.reduced_q import DEFAULT_SIGMA_MIN_RATIO
 
 __all__ = [

@@ -199,7 +199,6 @@ class BandedQp:
         self.normal = (self.a_t @ self.a).tocsr()
         self.half_bandwidth = _half_bandwidth(self.a, self.f)
         self._normal_factor = None
-        self._band_buffer = None
         if options.linear_solver != "qr":
             self._prepare_cholesky()
         self.route = self._choose_route(options.linear_solver)
@@ -215,21 +214,23 @@ class BandedQp:
         u = self.half_bandwidth
         n = self.n
         width = u + 1
-        self.band_size = width * n
         # Fixed variables: their rows and columns zero, a unit diagonal.
         keep = np.ones((n, width), dtype=bool)
         for offset in range(width):
             keep[:, offset][self.fixed] = False                        # M[v + offset, v]
             keep[:n - offset, offset][self.fixed[offset:]] = False     # M[v, v − offset]
-        self.band_keep = keep
         self.normal_band = _band_of(self.normal, u)
         self.normal_band *= keep
         self.normal_band[self.fixed, 0] = 1.0
+        # One buffer for every Newton step's band (a fresh 25 MB array per step cost ~15 ms
+        # in page faults at N = 10⁵).
+        self._band_buffer = np.empty_like(self.normal_band)
         f = self.f
         counts = np.diff(f.indptr)
+        most = int(counts.max(initial=0))
         rows_all, flat_all, coef_all = [], [], []
-        for first in range(int(counts.max(initial=0))):
-            for second in range(first, int(counts.max(initial=0))):
+        for first in range(most):
+            for second in range(first, most):
                 rows = np.flatnonzero(counts > second)
                 col_a = f.indices[f.indptr[rows] + first]
                 col_b = f.indices[f.indptr[rows] + second]
@@ -238,33 +239,27 @@ class BandedQp:
                 rows_all.append(rows)
                 flat_all.append(low * width + (high - low))
                 coef_all.append(value)
-        self.pair_rows = np.concatenate(rows_all) if rows_all else np.zeros(0, dtype=int)
-        self.pair_flat = np.concatenate(flat_all) if flat_all else np.zeros(0, dtype=int)
-        self.pair_coef = np.concatenate(coef_all) if coef_all else np.zeros(0)
+        pair_rows = np.concatenate(rows_all) if rows_all else np.zeros(0, dtype=int)
+        pair_flat = np.concatenate(flat_all) if flat_all else np.zeros(0, dtype=int)
+        pair_coef = np.concatenate(coef_all) if coef_all else np.zeros(0)
         # Entries that fall on a fixed row or column are dropped.
-        on_kept = keep.ravel()[self.pair_flat]
-        self.pair_rows = self.pair_rows[on_kept]
-        self.pair_flat = self.pair_flat[on_kept]
-        self.pair_coef = self.pair_coef[on_kept]
+        on_kept = keep.ravel()[pair_flat]
+        pair_rows, pair_flat, pair_coef = (pair_rows[on_kept], pair_flat[on_kept],
+                                           pair_coef[on_kept])
         # Band positions touched by F (a few per sample) and the sparse map from the row
         # weights D to their entries: the band is assembled by one sparse product and a
         # scatter (a bincount over the whole band cost ~45 ms per step at N = 10⁵).
-        touched = np.zeros(self.band_size, dtype=bool)
-        touched[self.pair_flat] = True
+        touched = np.zeros(width * n, dtype=bool)
+        touched[pair_flat] = True
         self.pair_positions = np.flatnonzero(touched)
-        position_of_pair = np.searchsorted(self.pair_positions, self.pair_flat)
         self.pair_map = sparse.csr_matrix(
-            (self.pair_coef, (position_of_pair, self.pair_rows)),
+            (pair_coef, (np.searchsorted(self.pair_positions, pair_flat), pair_rows)),
             shape=(self.pair_positions.size, self.m))
 
     def _band(self, weights) -> np.ndarray:
-        """Band storage of AᵀA + Fᵀ diag(weights) F with the fixed rows masked.
-
-        Written into one buffer kept for the whole solve (a fresh 25 MB array per step cost
-        ~15 ms in page faults at N = 10⁵): the band, or the factor made from it, is valid
-        until the next call."""
-        if self._band_buffer is None:
-            self._band_buffer = np.empty_like(self.normal_band)
+        """Band storage of AᵀA + Fᵀ diag(weights) F with the fixed rows masked, written into
+        the one band buffer: the band, or the factor made from it, is valid until the next
+        call."""
         band = self._band_buffer
         np.copyto(band, self.normal_band)
         band.ravel()[self.pair_positions] += self.pair_map @ weights
@@ -501,12 +496,7 @@ class BandedQp:
             # route (a Python loop over the samples: 3.7 s instead of 0.6 s at N = 10⁴).
             stop_here = acceptable and self.route == "cholesky"
             try:
-                try:
-                    solve = self.factorize(weights, switch_to_qr=not stop_here)
-                except LinAlgError:
-                    if stop_here:
-                        raise _AcceptableIterate from None
-                    raise
+                solve = self.factorize(weights, switch_to_qr=not stop_here)
 
                 def newton(rc_u, rc_l):
                     w_u = (lam_u * r_pu - rc_u) / s_u
@@ -517,8 +507,6 @@ class BandedQp:
                     except LinAlgError:
                         if self.route == "qr":
                             raise
-                        if stop_here:
-                            raise _AcceptableIterate from None
                         # The regularised factor could not reach this right-hand side (in
                         # the predictor, or again in the corrector of the same iteration,
                         # which shares the factor): the square-root route from here on.
@@ -541,11 +529,14 @@ class BandedQp:
                 # Corrector with centring.
                 step = newton(s_u * lam_u + step[1] * step[3] - centering * gap,
                               s_l * lam_l + step[2] * step[4] - centering * gap)
-            except _AcceptableIterate:
-                status = "converged"
-                iteration -= 1
+            except LinAlgError as error:
+                if stop_here:     # the unregularised factorisation broke down: accept
+                    status = "converged"
+                    iteration -= 1
+                else:
+                    status = f"numerical_failure: {error}"
                 break
-            except (LinAlgError, ValueError) as error:
+            except ValueError as error:
                 status = f"numerical_failure: {error}"
                 break
             if not all(np.all(np.isfinite(part)) for part in step):
@@ -610,10 +601,6 @@ class BandedQp:
                                   1, self.route, math.nan, math.nan, math.nan, np.zeros(0))
         return BandedIpResult(y + dy, True, "converged", 1, self.route, 0.0, 0.0, 0.0,
                               np.zeros(0))
-
-
-class _AcceptableIterate(Exception):
-    """The Cholesky route broke down at an iterate within 10× of the gap tolerance."""
 
 
 def _max_step(values, steps) -> float:
