@@ -221,7 +221,10 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
 
 
 def write_onboard_logs(out: Path, handles, context, names) -> None:
-    """onboard_commands.csv: one row per accepted command (count, session, seq, time, q);
+    """onboard_commands.csv: one row per receiver poll that accepted commands (count, session,
+    seq, time, q of the newest of them; ``accepted`` is the running count, so a poll that
+    accepted a burst of k packets, e.g. after the process fell behind the wall clock, makes it
+    jump by k);
     onboard_guard.csv: one row per guard command (count, time, mode, stop outcome of the last
     stop plan, q) — what reached the robot's interpolator. Modes and outcomes are indices in
     ``GUARD_MODES`` and ``STOP_OUTCOMES``."""
