@@ -505,8 +505,8 @@ class BandedQp:
                     try:
                         dy = solve(-residual_a, rhs_f, -gradient)
                     except LinAlgError:
-                        if self.route == "qr":
-                            raise
+                        if self.route == "qr" or stop_here:
+                            raise   # stop_here: the iterate is accepted below
                         # The regularised factor could not reach this right-hand side (in
                         # the predictor, or again in the corrector of the same iteration,
                         # which shares the factor): the square-root route from here on.
