@@ -259,6 +259,32 @@ def _add_compare_parser(subparsers) -> None:
     p.set_defaults(handler=run_compare)
 
 
+def _add_foresight_parser(subparsers) -> None:
+    from telesmooth.diagrams.comparison import COMPARE_METHODS
+
+    p = subparsers.add_parser(
+        "foresight",
+        help="how much of a method's deformation needed foresight: the best continuation of "
+             "its commands from every step-th sample, the whole future known",
+    )
+    _add_scenario_arguments(p)
+    p.add_argument("--out", type=Path, default=Path("out/foresight"), help="report folder")
+    p.add_argument("--method", choices=COMPARE_METHODS, default="online-hard",
+                   help="the method whose commands are continued (default online-hard)")
+    p.add_argument("--step", type=int, default=4,
+                   help="samples between two starts (default 4: every second at 4 Hz)")
+    p.set_defaults(handler=run_foresight)
+
+
+def run_foresight(args) -> int:
+    from telesmooth.scripts.foresight_report import write_foresight_report
+
+    report = write_foresight_report(args.out, _load_scenario(args), args.method,
+                                    step=args.step)
+    print(f"report: {report}")
+    return 0
+
+
 def _add_offline_solver_argument(p) -> None:
     p.add_argument("--solver", choices=OFFLINE_SOLVERS, default="drake",
                    help="solver of the Offline-CKS methods: 'drake' (the MathematicalProgram + "
@@ -456,6 +482,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_demo_parser(subparsers)
     _add_simulate_parser(subparsers)
     _add_compare_parser(subparsers)
+    _add_foresight_parser(subparsers)
     _add_experiment_parser(subparsers)
     _add_bench_parser(subparsers)
     _add_process_parsers(subparsers)
