@@ -447,7 +447,45 @@ def summarize(records: list[dict]) -> dict:
     for (study, value), rows in sorted(by_value.items()):
         sensitivity.setdefault(study, []).append({"value": value, **_aggregate(rows)})
     c8 = _c8_summary([r for r in records if r["kind"] == "c8"])
-    return {"main": main, "sensitivity": sensitivity, "c8": c8, "records": records}
+    paired = {f"{label} / ruckig": paired_ratio(records, label, "ruckig")
+              for label in PAIRED_AGAINST_RUCKIG if label in main and "ruckig" in main}
+    return {"main": main, "sensitivity": sensitivity, "c8": c8, "paired": paired,
+            "records": records}
+
+
+PAIRED_AGAINST_RUCKIG = ("online-hard", "offline-cks-trajectory")
+"""The methods within the limits whose E_def is set against Ruckig's demonstration by
+demonstration (issue 6: online-hard at most a quarter of Ruckig's stream tracking)."""
+
+PAIRED_SHARE = 0.25
+"""The share of Ruckig's E_def the paired comparison counts the demonstrations above."""
+
+
+def paired_ratio(records: list[dict], label: str, reference: str,
+                 key: str = "cartesian_deformation_mean_m") -> dict:
+    """``key`` of run ``label`` over that of ``reference`` on each demonstration both ran.
+
+    Returns:
+        {"n", "mean", "worst" (the largest ratio), "worst_demo" ("shape/demo"),
+        "above_share" (demonstrations whose ratio exceeds :data:`PAIRED_SHARE`), "share"};
+        n = 0 and None figures when they share no demonstration.
+    """
+    values = {}
+    for record in records:
+        if record["kind"] == "run" and record["study"] == "main" and (
+                record["label"] in (label, reference)):
+            values.setdefault((record["shape"], record["demo"]), {})[record["label"]] = \
+                record["metrics"][key]
+    ratios = {cell: pair[label] / pair[reference] for cell, pair in sorted(values.items())
+              if label in pair and reference in pair and pair[reference] > 0}
+    if not ratios:
+        return {"n": 0, "mean": None, "worst": None, "worst_demo": None, "above_share": 0,
+                "share": PAIRED_SHARE}
+    worst_cell = max(ratios, key=ratios.get)
+    array = np.array(list(ratios.values()))
+    return {"n": len(ratios), "mean": float(array.mean()), "worst": float(ratios[worst_cell]),
+            "worst_demo": f"{worst_cell[0]}/{worst_cell[1]}",
+            "above_share": int(np.sum(array > PAIRED_SHARE)), "share": PAIRED_SHARE}
 
 
 def _aggregate(rows: list[dict]) -> dict:

@@ -122,6 +122,28 @@ def test_p_is_taken_against_the_original_of_the_same_demonstration():
     assert summary["main"]["original"]["improvement_ratio_percent"]["mean"] == 0.0
 
 
+def test_online_hard_is_set_against_ruckig_demonstration_by_demonstration():
+    # Ratios 0.1, 0.5 and 0.2 (B/0 twice as far as the others); C/0 has no Ruckig run.
+    cells = {("A", 0): (1.0, 10.0), ("B", 0): (4.0, 8.0), ("B", 3): (1.0, 5.0)}
+    records = []
+    for (shape, demo), (hard, ruckig) in cells.items():
+        records += [record(shape, demo, "original", 10.0, 0.0),
+                    record(shape, demo, "online-hard", 10.0, 0.0,
+                           cartesian_deformation_mean_m=hard),
+                    record(shape, demo, "ruckig", 10.0, 0.0,
+                           cartesian_deformation_mean_m=ruckig)]
+    records += [record("C", 0, "original", 10.0, 0.0),
+                record("C", 0, "online-hard", 10.0, 0.0, cartesian_deformation_mean_m=9.0)]
+    paired = summarize(records)["paired"]
+    assert set(paired) == {"online-hard / ruckig"}
+    row = paired["online-hard / ruckig"]
+    assert row["n"] == 3 and row["mean"] == pytest.approx((0.1 + 0.5 + 0.2) / 3)
+    assert row["worst"] == pytest.approx(0.5) and row["worst_demo"] == "B/0"
+    assert row["above_share"] == 1 and row["share"] == 0.25
+    # Without Ruckig in the grid there is nothing to pair.
+    assert summarize([r for r in records if r["method"] != "ruckig"])["paired"] == {}
+
+
 def claims_for(p, deformation, fd):
     records = []
     for method in ("original",) + tuple(p):
