@@ -53,7 +53,8 @@ class ContinuationResult:
 
     Attributes:
         start: s, the first replaced sample.
-        positions: [p_0 … p_{s−1}, p*_s … p*_{N−1}], rad, (N, J) (NaN where a joint failed).
+        positions: [p_0 … p_{s−1}, p*_s … p*_{N−1}], rad, (N, J) (NaN where a joint
+            failed).
         squared_error: Σ_{i ≥ s} (p*_i − z_i)² per joint, rad², (J,).
         is_success: per joint, (J,).
         status: per joint, the solver's result ("SolutionResult.kSolutionFound", or why not).
