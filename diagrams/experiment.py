@@ -420,7 +420,9 @@ def summarize(records: list[dict]) -> dict:
 
     Returns:
         {"main": {label: {figure: {"mean", "worst", "n"}}}, "sensitivity": {study: [{value,
-        figure: mean}]}, "c8": {...}, "records": records with P}.
+        figure: mean}]}, "c8": {...}, "paired": {"<method> / ruckig": paired_ratio(...)}
+        for the methods of :data:`PAIRED_AGAINST_RUCKIG` (when both ran), "records": records
+        with P}.
     """
     records = _with_p(records)
     groups: dict[str, list[dict]] = {}
@@ -467,8 +469,9 @@ def paired_ratio(records: list[dict], label: str, reference: str,
 
     Returns:
         {"n", "mean", "worst" (the largest ratio), "worst_demo" ("shape/demo"),
-        "above_share" (demonstrations whose ratio exceeds :data:`PAIRED_SHARE`), "share"};
-        n = 0 and None figures when they share no demonstration.
+        "above_share" (demonstrations whose ratio exceeds :data:`PAIRED_SHARE`), "share",
+        "reference_zero" (demonstrations both ran where the reference's figure is 0: no
+        ratio)}; n = 0 and None figures when no ratio exists.
     """
     values = {}
     for record in records:
@@ -476,16 +479,21 @@ def paired_ratio(records: list[dict], label: str, reference: str,
                 record["label"] in (label, reference)):
             values.setdefault((record["shape"], record["demo"]), {})[record["label"]] = \
                 record["metrics"][key]
-    ratios = {cell: pair[label] / pair[reference] for cell, pair in sorted(values.items())
-              if label in pair and reference in pair and pair[reference] > 0}
+    both = {cell: pair for cell, pair in sorted(values.items())
+            if label in pair and reference in pair}
+    # A demonstration the reference tracks exactly has no ratio; it is counted, not hidden.
+    ratios = {cell: pair[label] / pair[reference] for cell, pair in both.items()
+              if pair[reference] > 0}
+    skipped = len(both) - len(ratios)
     if not ratios:
         return {"n": 0, "mean": None, "worst": None, "worst_demo": None, "above_share": 0,
-                "share": PAIRED_SHARE}
+                "share": PAIRED_SHARE, "reference_zero": skipped}
     worst_cell = max(ratios, key=ratios.get)
     array = np.array(list(ratios.values()))
     return {"n": len(ratios), "mean": float(array.mean()), "worst": float(ratios[worst_cell]),
             "worst_demo": f"{worst_cell[0]}/{worst_cell[1]}",
-            "above_share": int(np.sum(array > PAIRED_SHARE)), "share": PAIRED_SHARE}
+            "above_share": int(np.sum(array > PAIRED_SHARE)), "share": PAIRED_SHARE,
+            "reference_zero": skipped}
 
 
 def _aggregate(rows: list[dict]) -> dict:

@@ -251,7 +251,7 @@ def _report_text(config: ExperimentConfig, summary: dict, claims: dict, figures,
         "",
         _claims_markdown(claims),
     ]
-    paired = summary.get("paired", {})
+    paired = {name: row for name, row in summary.get("paired", {}).items() if row["n"]}
     if paired:
         lines += ["## Within the limits against Ruckig, demonstration by demonstration", "",
                   "E_def of the method over Ruckig's E_def on the same demonstration (issue 6 "
@@ -261,9 +261,8 @@ def _report_text(config: ExperimentConfig, summary: dict, claims: dict, figures,
                   "| ratio | demonstrations | mean | worst (demonstration) | above "
                   f"{next(iter(paired.values()))['share']:g} |", "|---|---:|---:|---:|---:|"]
         for name, row in paired.items():
-            if row["n"]:
-                lines.append(f"| {name} | {row['n']} | {row['mean']:.3f} | {row['worst']:.3f} "
-                             f"({row['worst_demo']}) | {row['above_share']} |")
+            lines.append(f"| {name} | {row['n']} | {row['mean']:.3f} | {row['worst']:.3f} "
+                         f"({row['worst_demo']}) | {row['above_share']} |")
         lines.append("")
     if summary["sensitivity"]:
         lines += ["## Online-CKS sensitivity (mean (worst) over the sensitivity shapes)", "",

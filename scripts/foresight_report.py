@@ -49,7 +49,11 @@ def foresight_study(scenario, method: str = "online-hard", *, step: int = 4,
 
     Returns:
         A JSON-ready dict: ``scenario``, ``method`` (E_def, delay), ``rows`` (one per start),
-        ``commitment`` (per share in :data:`SHARES`, the first start whose bound reaches it).
+        ``commitment`` (per share in :data:`SHARES`, the first start whose continuation's
+        E_def reaches that share of the method's; empty when the method breaks the limits).
+        Each row's ``bound_share`` is the bound over the method's own remaining squared joint
+        deviation (summed over joints): the part of it no method with the same first s
+        commands could avoid.
 
     Raises:
         ValueError: an unknown method, a bad step, a scenario without a recording.
@@ -87,6 +91,9 @@ def foresight_study(scenario, method: str = "online-hard", *, step: int = 4,
             "e_def_m": cartesian_deformation(result.positions, z, fk)["mean"] if ok
             else math.nan,
             "is_success": result.is_success.tolist(), "status": list(result.status)})
+        method_sum = sum(rows[-1]["method_squared_error_rad2"])
+        rows[-1]["bound_share"] = (float(np.sum(result.squared_error)) / method_sum
+                                   if ok and method_sum > 0 else math.nan)
         if progress is not None and (count % 25 == 0 or count == len(starts)):
             progress(f"  foresight: {count}/{len(starts)} starts "
                      f"({time.perf_counter() - started:.1f} s)")
@@ -96,7 +103,8 @@ def foresight_study(scenario, method: str = "online-hard", *, step: int = 4,
         first = next((row for row in rows
                       if row["e_def_m"] >= share * method_e_def), None)
         commitment[f"{share:g}"] = None if first is None else {
-            "start": first["start"], "t_s": first["t_s"], "e_def_m": first["e_def_m"]}
+            "start": first["start"], "t_s": first["t_s"], "e_def_m": first["e_def_m"],
+            "bound_share": first["bound_share"]}
     a_max = np.broadcast_to(np.asarray(settings.max_acceleration, dtype=float), (z.shape[1],))
     operator_acc = np.zeros(z.shape)
     operator_acc[2:] = np.diff(z, 2, axis=0) / period**2
@@ -168,10 +176,14 @@ def _report_text(study: dict, figures) -> str:
              f"{1e3 * method['e_def_m']:.2f} mm.", "",
              "Row s: the commands closest to the operator within the limits that could "
              "still follow the method's first s commands, with the whole future known "
-             "(`telesmooth.smoothing.foresight`). Their joint deviation is a lower bound for "
-             "every method within the limits that sent the same first s commands; E_def is "
-             "that continuation's Cartesian deformation. Where it is close to the method's "
-             "own, the deformation was committed by then.", ""]
+             "(`telesmooth.smoothing.foresight`). Their remaining squared joint deviation "
+             "is a lower bound for every method within the limits that sent the same first s "
+             "commands (*bound / method*: the share of the method's own that no such method "
+             "could avoid). E_def is the Cartesian deformation of that whole sequence (the "
+             "method's first s commands, then the continuation): the continuation minimises "
+             "the joint deviation, so its E_def indicates, but does not bound, what full "
+             "foresight could reach. Where both approach the method's own, the deformation "
+             "was committed by then.", ""]
     violation = method["first_limit_violation_sample"]
     if violation is not None:
         lines.append(f"- {method['name']}'s commands break the FD limits (first at sample "
@@ -182,16 +194,19 @@ def _report_text(study: dict, figures) -> str:
         if first is None:
             lines.append(f"- No continuation reaches {float(share):.0%} of the method's E_def.")
         else:
-            lines.append(f"- From t = {first['t_s']:.2f} s (sample {first['start']}) on, even "
-                         f"full foresight leaves E_def = {1e3 * first['e_def_m']:.2f} mm, "
-                         f"{float(share):.0%} or more of the method's.")
+            lines.append(f"- The first start whose continuation keeps {float(share):.0%} of "
+                         f"the method's E_def: t = {first['t_s']:.2f} s (sample "
+                         f"{first['start']}), E_def {1e3 * first['e_def_m']:.2f} mm; there the "
+                         f"bound is {first['bound_share']:.0%} of the method's remaining "
+                         f"squared joint deviation.")
     lines += ["", "| s | t [s] | remaining Σ(p−z)², method [rad²] | bound [rad²] | "
-              "E_def of the continuation [mm] |", "|---:|---:|---:|---:|---:|"]
+              "bound / method | E_def of the continuation [mm] |",
+              "|---:|---:|---:|---:|---:|---:|"]
     for row in study["rows"]:
         lines.append(f"| {row['start']} | {row['t_s']:.2f} | "
                      f"{sum(row['method_squared_error_rad2']):.3e} | "
                      f"{sum(row['bound_squared_error_rad2']):.3e} | "
-                     f"{1e3 * row['e_def_m']:.2f} |")
+                     f"{row['bound_share']:.1%} | {1e3 * row['e_def_m']:.2f} |")
     lines.append("")
     for title, name in figures:
         lines += [f"![{title}]({name})", ""]

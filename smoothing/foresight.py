@@ -116,7 +116,8 @@ def best_continuation(commands, reference, start: int, dt_s: float, *, max_accel
     if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or not (
             0 <= start < num_samples):
         raise ValueError(f"start = {start!r} must be an integer in [0, {num_samples})")
-    if not (isinstance(dt_s, (int, float)) and math.isfinite(dt_s) and dt_s > 0):
+    if isinstance(dt_s, bool) or not (isinstance(dt_s, (int, float, np.integer, np.floating))
+                                      and math.isfinite(dt_s) and dt_s > 0):
         raise ValueError(f"dt_s = {dt_s!r} must be a positive number of seconds")
     acc = as_per_joint("max_acceleration_rad_per_s2", max_acceleration, num_joints, joint_names)
     jerk = as_per_joint("max_jerk_rad_per_s3", max_jerk, num_joints, joint_names)

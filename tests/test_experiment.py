@@ -134,12 +134,16 @@ def test_online_hard_is_set_against_ruckig_demonstration_by_demonstration():
                            cartesian_deformation_mean_m=ruckig)]
     records += [record("C", 0, "original", 10.0, 0.0),
                 record("C", 0, "online-hard", 10.0, 0.0, cartesian_deformation_mean_m=9.0)]
+    # D/0: Ruckig tracked it exactly (E_def 0): no ratio, counted apart.
+    records += [record("D", 0, "original", 10.0, 0.0),
+                record("D", 0, "online-hard", 10.0, 0.0, cartesian_deformation_mean_m=1.0),
+                record("D", 0, "ruckig", 10.0, 0.0, cartesian_deformation_mean_m=0.0)]
     paired = summarize(records)["paired"]
     assert set(paired) == {"online-hard / ruckig"}
     row = paired["online-hard / ruckig"]
     assert row["n"] == 3 and row["mean"] == pytest.approx((0.1 + 0.5 + 0.2) / 3)
     assert row["worst"] == pytest.approx(0.5) and row["worst_demo"] == "B/0"
-    assert row["above_share"] == 1 and row["share"] == 0.25
+    assert row["above_share"] == 1 and row["share"] == 0.25 and row["reference_zero"] == 1
     # Without Ruckig in the grid there is nothing to pair.
     assert summarize([r for r in records if r["method"] != "ruckig"])["paired"] == {}
 

@@ -17,7 +17,7 @@ DT = 0.25
 A_MAX, J_MAX = 0.05, 0.1
 
 
-def _dense_continuation(commands, reference, start, acc, jerk, vel=np.inf):
+def _dense_continuation(commands, reference, start, acc, jerk, vel=np.inf, rest=None):
     """The same problem per joint written out densely with loops: variables p_start …,
     the extended sequence [z_0 × 3, p_0 … p_{start−1}, x], every backward difference ending
     at a variable limited; solved by the dense Mehrotra oracle."""
@@ -25,10 +25,12 @@ def _dense_continuation(commands, reference, start, acc, jerk, vel=np.inf):
     num_samples, num_joints = z.shape
     n = num_samples - start
     out = np.array(commands, dtype=float)
+    rest = z[0] if rest is None else np.asarray(rest, dtype=float)
     for j in range(num_joints):
-        fixed = [z[0, j]] * 3 + list(commands[:start, j])
+        fixed = [rest[j]] * 3 + list(commands[:start, j])
         rows, bounds = [], []
-        for order, limit in ((1, vel), (2, acc), (3, jerk)):
+        for order, limits in ((1, vel), (2, acc), (3, jerk)):
+            limit = np.broadcast_to(limits, (num_joints,))[j]
             if not np.isfinite(limit):
                 continue
             coefficients = {1: [-1, 1], 2: [1, -2, 1], 3: [-1, 3, -3, 1]}[order]
@@ -82,6 +84,19 @@ def test_a_velocity_limit_is_kept_and_matches_the_oracle():
     np.testing.assert_allclose(dut.positions, expected, rtol=0, atol=2e-6)
     history = np.vstack([np.repeat(z[:1], 3, axis=0), dut.positions])
     assert np.abs(np.diff(history, axis=0)).max() / DT <= 0.02 * (1 + 1e-6)
+
+
+def test_per_joint_limits_and_a_rest_pose_other_than_the_first_sample():
+    z, _ = _stream(seed=8)
+    rest = z[0] + np.array([0.01, -0.02])
+    acc, jerk, vel = np.array([0.05, 0.08]), np.array([0.1, 0.2]), np.array([np.inf, 0.03])
+    commands = online_hard_run(z, DT, max_acceleration=acc, max_jerk=jerk, max_velocity=vel,
+                               q_start=rest)
+    dut = best_continuation(commands, z, 12, DT, max_acceleration=acc, max_jerk=jerk,
+                            max_velocity=vel, rest=rest)
+    assert dut.is_success.all(), dut.status
+    expected = _dense_continuation(commands, z, 12, acc, jerk, vel=vel, rest=rest)
+    np.testing.assert_allclose(dut.positions, expected, rtol=0, atol=2e-6)
 
 
 def test_a_reference_within_the_limits_is_its_own_continuation():
@@ -173,6 +188,16 @@ def test_the_foresight_command_writes_its_report(tmp_path):
         assert all(m >= b - 1e-9 for m, b in zip(row["method_squared_error_rad2"],
                                                   row["bound_squared_error_rad2"]))
     assert set(study["commitment"]) == {"0.5", "0.8"}
+    method_e_def = study["method"]["e_def_m"]
+    for share, first in study["commitment"].items():
+        if first is None:
+            assert all(row["e_def_m"] < float(share) * method_e_def for row in rows)
+            continue
+        before = [row for row in rows if row["start"] < first["start"]]
+        assert first["e_def_m"] >= float(share) * method_e_def
+        assert all(row["e_def_m"] < float(share) * method_e_def for row in before)
+    for row in rows:
+        assert 0.0 <= row["bound_share"] <= 1.0 + 1e-9 or row["bound_share"] != row["bound_share"]
     assert study["method"]["first_limit_violation_sample"] is None
 
 
