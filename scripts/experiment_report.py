@@ -22,6 +22,7 @@ import numpy as np
 
 from telesmooth.diagrams.experiment import (
     APPROXIMATE_LIMIT,
+    PAIRED_SHARE,
     ExperimentConfig,
     check_claims,
     make_tasks,
@@ -259,7 +260,7 @@ def _report_text(config: ExperimentConfig, summary: dict, claims: dict, figures,
                   "one demonstration, how much of a deformation no rule could avoid without "
                   "knowing more of the operator's motion.", "",
                   "| ratio | demonstrations | mean | worst (demonstration) | above "
-                  f"{next(iter(paired.values()))['share']:g} |", "|---|---:|---:|---:|---:|"]
+                  f"{PAIRED_SHARE:g} |", "|---|---:|---:|---:|---:|"]
         for name, row in paired.items():
             lines.append(f"| {name} | {row['n']} | {row['mean']:.3f} | {row['worst']:.3f} "
                          f"({row['worst_demo']}) | {row['above_share']} |")

@@ -29,9 +29,10 @@ import numpy as np
 from telesmooth.diagrams.comparison import COMPARE_METHODS, method_settings, operator_samples
 from telesmooth.diagrams.simulation import tool_positions
 from telesmooth.scripts.figures import FigureWriter
-from telesmooth.smoothing.foresight import best_continuation
+from telesmooth.smoothing.foresight import foresight_sweep
 from telesmooth.smoothing.methods import smooth_recording
-from telesmooth.smoothing.metrics import cartesian_deformation
+from telesmooth.smoothing.metrics import cartesian_deformation, finite_differences
+from telesmooth.smoothing.offline import HISTORY_LENGTH, with_rest_history
 
 __all__ = ["foresight_study", "write_foresight_report"]
 
@@ -77,26 +78,29 @@ def foresight_study(scenario, method: str = "online-hard", *, step: int = 4,
         return tool_positions(scenario, q)
 
     method_e_def = cartesian_deformation(commands, z, fk)["mean"]
-    rows = []
-    starts = list(range(0, z.shape[0], step))
     started = time.perf_counter()
-    for count, start in enumerate(starts, 1):
-        result = best_continuation(commands, z, start, period, **limits)
+
+    def report_progress(done, total):
+        if progress is not None and (done % 25 == 0 or done == total):
+            progress(f"  foresight: {done}/{total} starts "
+                     f"({time.perf_counter() - started:.1f} s)")
+
+    sweep = foresight_sweep(commands, z, period, step=step, progress=report_progress,
+                            **limits)
+    rows = []
+    for start, method_error, result in zip(sweep.starts.tolist(), sweep.method_squared_error,
+                                           sweep.continuations):
         ok = bool(result.is_success.all())
+        method_sum = float(np.sum(method_error))
         rows.append({
             "start": start, "t_s": float(samples.t_s[start]),
-            "method_squared_error_rad2": np.sum((commands[start:] - z[start:]) ** 2,
-                                                axis=0).tolist(),
+            "method_squared_error_rad2": method_error.tolist(),
             "bound_squared_error_rad2": result.squared_error.tolist(),
             "e_def_m": cartesian_deformation(result.positions, z, fk)["mean"] if ok
             else math.nan,
+            "bound_share": (float(np.sum(result.squared_error)) / method_sum
+                            if ok and method_sum > 0 else math.nan),
             "is_success": result.is_success.tolist(), "status": list(result.status)})
-        method_sum = sum(rows[-1]["method_squared_error_rad2"])
-        rows[-1]["bound_share"] = (float(np.sum(result.squared_error)) / method_sum
-                                   if ok and method_sum > 0 else math.nan)
-        if progress is not None and (count % 25 == 0 or count == len(starts)):
-            progress(f"  foresight: {count}/{len(starts)} starts "
-                     f"({time.perf_counter() - started:.1f} s)")
     violation = _first_violation(commands, z[0], period, settings)
     commitment = {}
     for share in SHARES if violation is None else ():
@@ -107,7 +111,7 @@ def foresight_study(scenario, method: str = "online-hard", *, step: int = 4,
             "bound_share": first["bound_share"]}
     a_max = np.broadcast_to(np.asarray(settings.max_acceleration, dtype=float), (z.shape[1],))
     operator_acc = np.zeros(z.shape)
-    operator_acc[2:] = np.diff(z, 2, axis=0) / period**2
+    operator_acc[2:] = finite_differences(z, period, 2)
     return {
         "scenario": {"arm": scenario.arm, "haptic_source": scenario.haptic.source,
                      "period_s": period, "num_samples": int(z.shape[0]),
@@ -126,14 +130,14 @@ def _first_violation(commands, rest, period: float, settings) -> int | None:
     """The first sample whose command breaks an FD limit (after rest at ``rest``), or None.
     Relative slack 1e-9: the limiter's own rounding margin."""
     n = commands.shape[1]
-    history = np.vstack([np.repeat(np.asarray(rest)[None, :], 3, axis=0), commands])
+    history = with_rest_history(commands, rest, hold_at_end=0)
     worst = np.zeros(commands.shape[0], dtype=bool)
     for order, limit in ((1, settings.max_velocity), (2, settings.max_acceleration),
                          (3, settings.max_jerk)):
         if limit is None:
             continue
         bound = np.broadcast_to(np.asarray(limit, dtype=float), (n,)) * (1 + 1e-9)
-        values = np.abs(np.diff(history, order, axis=0)[3 - order:]) / period**order
+        values = np.abs(finite_differences(history, period, order)[HISTORY_LENGTH - order:])
         worst |= np.any(values > bound, axis=1)
     hits = np.flatnonzero(worst)
     return int(hits[0]) if hits.size else None

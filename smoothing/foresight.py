@@ -36,9 +36,9 @@ import dataclasses
 import math
 
 import numpy as np
-import scipy.sparse as sparse
 from pydrake.solvers import ClarabelSolver, MathematicalProgram, QuadraticCost, SolverOptions
 
+from telesmooth.smoothing.offline import finite_difference_operator
 from telesmooth.smoothing.validation import _joint_label, as_per_joint, check_trajectory
 
 __all__ = ["ContinuationResult", "ForesightSweep", "best_continuation", "foresight_sweep"]
@@ -67,21 +67,17 @@ class ContinuationResult:
     status: tuple
 
 
-def _limit_rows(num_samples: int, start: int, order: int) -> tuple[sparse.csr_matrix,
-                                                                   np.ndarray]:
-    """Backward differences of order ``order`` of the extended sequence e = [history, prefix,
-    x] as (D, selector): row k is the difference ending at sample k (k ≥ start, the rows that
-    touch a variable); D acts on the free variables x = p_start … p_{N−1} and ``selector``
-    (rows × (history + start)) on the fixed entries."""
-    coefficients = {1: [-1.0, 1.0], 2: [1.0, -2.0, 1.0], 3: [-1.0, 3.0, -3.0, 1.0]}[order]
-    extended = _HISTORY + num_samples
-    diff = sparse.diags(coefficients, list(range(order + 1)),
-                        shape=(extended - order, extended), format="csc")
-    # Rows whose last entry is sample k ≥ start: they are the ones that touch a variable.
-    first_row = _HISTORY + start - order
-    diff = diff[first_row:]
-    fixed = _HISTORY + start
-    return diff[:, fixed:].tocsr(), diff[:, :fixed].toarray()
+def _limit_rows(num_samples: int, start: int, order: int):
+    """The backward differences of order ``order`` of [history × rest, p_0 … p_{N−1}]
+    (:func:`~telesmooth.smoothing.offline.finite_difference_operator`, positions relative to
+    the rest pose so the history contributes nothing), split at ``start``: (D_x, D_prefix)
+    over the rows that touch a free variable x = p_start … p_{N−1} (D_x on x, D_prefix on the
+    fixed p_0 … p_{start−1}), and the rows over the prefix alone (checked, not imposed)."""
+    operator, _ = finite_difference_operator(num_samples, order, history=_HISTORY)
+    operator = operator.tocsc()
+    free, prefix = operator[:, start:], operator[:, :start]
+    touches = np.diff(free.tocsr().indptr) > 0
+    return free[touches], prefix[touches].toarray(), prefix[~touches].toarray()
 
 
 def best_continuation(commands, reference, start: int, dt_s: float, *, max_acceleration,
@@ -144,7 +140,7 @@ def best_continuation(commands, reference, start: int, dt_s: float, *, max_accel
     status = []
     for j in range(num_joints):
         # Positions relative to the rest pose: round-off does not grow with the joint angle.
-        fixed = np.concatenate([np.zeros(_HISTORY), p[:start, j] - q_rest[j]])
+        fixed = p[:start, j] - q_rest[j]
         target = z[start:, j] - q_rest[j]
         prog = MathematicalProgram()
         x = prog.NewContinuousVariables(n, f"p_j{j}")
@@ -155,10 +151,10 @@ def best_continuation(commands, reference, start: int, dt_s: float, *, max_accel
         for order, limit in limits:
             if not math.isfinite(limit[j]):
                 continue
-            d, selector = rows[order]
+            d, selector, prefix_only = rows[order]
             offset = selector @ fixed
-            prefix_ok &= bool(np.all(np.abs(np.diff(fixed, order)) <= limit[j] * (1 + 1e-9)))
-            prog.AddLinearConstraint(d.tocsc(), -limit[j] - offset, limit[j] - offset, x) \
+            prefix_ok &= bool(np.all(np.abs(prefix_only @ fixed) <= limit[j] * (1 + 1e-9)))
+            prog.AddLinearConstraint(d, -limit[j] - offset, limit[j] - offset, x) \
                 .evaluator().set_description(f"fd{order}_limit_j{j}")
         if not prefix_ok:
             status.append(f"the first {start} commands already break a limit of "
@@ -196,13 +192,14 @@ class ForesightSweep:
 
 
 def foresight_sweep(commands, reference, dt_s: float, *, starts=None, step: int = 4,
-                    **limits) -> ForesightSweep:
+                    progress=None, **limits) -> ForesightSweep:
     """:func:`best_continuation` from every ``step``-th sample (or the given ``starts``).
 
     Args:
         commands, reference, dt_s: as for :func:`best_continuation`.
         starts: sample indices, or None for 0, step, 2·step, … < N.
         step: spacing of the default starts (≥ 1).
+        progress: optional callable(done, total), called after each start.
         **limits: max_acceleration, max_jerk, max_velocity, rest, joint_names, tolerance.
 
     Raises:
@@ -215,8 +212,12 @@ def foresight_sweep(commands, reference, dt_s: float, *, starts=None, step: int 
             raise ValueError(f"step = {step!r} must be an integer >= 1")
         starts = range(0, z.shape[0], step)
     starts = np.array(list(starts), dtype=int)
-    continuations = tuple(best_continuation(p, z, int(s), dt_s, **limits) for s in starts)
+    continuations = []
+    for done, start in enumerate(starts, 1):
+        continuations.append(best_continuation(p, z, int(start), dt_s, **limits))
+        if progress is not None:
+            progress(done, len(starts))
     method = np.array([np.sum((p[s:] - z[s:]) ** 2, axis=0) for s in starts])
     bound = np.array([c.squared_error for c in continuations])
     return ForesightSweep(starts=starts, method_squared_error=method,
-                          bound_squared_error=bound, continuations=continuations)
+                          bound_squared_error=bound, continuations=tuple(continuations))
