@@ -203,6 +203,10 @@ class Scenario:
                 math.isfinite(self.simulation_duration_s) and self.simulation_duration_s > 0):
             raise ValueError(
                 f"simulation_duration_s = {self.simulation_duration_s!r} must be positive")
+        try:
+            self.onboard.arm_description       # the drive's per-joint values fit the arm
+        except ValueError as error:
+            raise ValueError(f"onboard.{error}") from None
         names = self.arm_description.joint_names
         for field in ("sigma", "max_acceleration_rad_per_s2", "max_jerk_rad_per_s3"):
             try:

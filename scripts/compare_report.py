@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from telesmooth.diagrams.comparison import COMPARE_METHODS, Comparison, compare_methods
-from telesmooth.diagrams.simulation import tool_positions
+from telesmooth.diagrams.simulation import plant_text, tool_positions
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.smoothing.metrics import finite_differences
 from telesmooth.smoothing.offline import HISTORY_LENGTH, with_rest_history
@@ -177,7 +177,7 @@ def _write_figures(out: Path, comparison: Comparison) -> list[tuple[str, str]]:
     return writer.figures
 
 
-def _report_text(comparison: Comparison, rows, figures) -> str:
+def _report_text(comparison: Comparison, rows, figures, plant: dict) -> str:
     scenario = comparison.scenario
     table = table_markdown(rows)
     lines = [
@@ -187,6 +187,8 @@ def _report_text(comparison: Comparison, rows, figures) -> str:
         f"{comparison.q_original.shape[0]} operator samples at {comparison.period_s} s "
         f"(the recording and {scenario.settle_s} s of holding still); every method played "
         f"through the same uplink and flexible-joint robot for {comparison.duration_s:.1f} s.",
+        "",
+        plant_text(plant),
         "",
         table,
         "",
@@ -221,11 +223,13 @@ def write_comparison_report(out_dir, scenario, *, methods=COMPARE_METHODS,
     comparison = compare_methods(scenario, methods, progress=progress,
                                  offline_solver=offline_solver)
     rows = comparison.table()
+    plant = comparison.plant()
     data = {
         "scenario": {"arm": scenario.arm, "haptic_source": scenario.haptic.source,
                      "period_s": comparison.period_s, "num_samples": int(comparison.t_s.size),
                      "duration_s": comparison.duration_s,
                      "joint_names": list(comparison.joint_names)},
+        "plant": plant,
         "table": rows,
         "methods": {name: run.metrics for name, run in comparison.runs.items()},
     }
@@ -234,5 +238,5 @@ def write_comparison_report(out_dir, scenario, *, methods=COMPARE_METHODS,
     _write_packets(out, comparison)
     figures = _write_figures(out, comparison)
     report = out / "report.md"
-    report.write_text(_report_text(comparison, rows, figures))
+    report.write_text(_report_text(comparison, rows, figures, plant))
     return report

@@ -21,7 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
-from telesmooth.diagrams.simulation import SimulationRecord, run_metrics, simulate, tool_positions
+from telesmooth.diagrams.simulation import (
+    SimulationRecord,
+    plant_text,
+    run_metrics,
+    simulate,
+    tool_positions,
+)
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.smoothing.metrics import finite_differences
 from telesmooth.smoothing.validation import as_per_joint
@@ -167,6 +173,8 @@ def _report_text(metrics: dict, figures) -> str:
         f"on collision `{metrics['scenario']['on_collision']}`. "
         f"{metrics['duration_s']:.1f} s simulated in {metrics['wall_time_s']:.1f} s "
         f"({metrics['realtime_factor']:.1f}× real time), {metrics['num_packets']} packets.",
+        "",
+        plant_text(metrics["plant"]),
         "",
         "| joint | FD acc max/limit | FD acc over | FD jerk max/limit | FD jerk over | "
         "deformation mean [mrad] |",
