@@ -95,7 +95,8 @@ __all__ = [
 ]
 
 COMPARE_METHODS = ("original", "kf", "kf-predictor", "offline-ks", "offline-cks",
-                   "offline-cks-trajectory", "bmfls", "online-cks", "online-hard", "ruckig")
+                   "offline-cks-trajectory", "offline-hard", "bmfls", "online-cks",
+                   "online-hard", "ruckig")
 """Every method :func:`compare_methods` knows, in the order of the paper's Table 2."""
 
 _REFERENCE = "original"
@@ -234,7 +235,7 @@ def method_settings(scenario: Scenario, method: str, offline_solver: str = "drak
         max_acceleration=config.max_acceleration_rad_per_s2,
         max_jerk=config.max_jerk_rad_per_s3, sigma=config.sigma, r=config.r, lag=config.lag,
         fixed_lag_method=config.fixed_lag_method, reduced_q=config.reduced_q,
-        offline_solver=offline_solver)
+        offline_solver=offline_solver, start_prior=config.start_prior)
     if method == "offline-cks-trajectory":
         return "offline-cks", dataclasses.replace(settings, constraint="trajectory",
                                                   rest_at_end=True)

@@ -53,6 +53,7 @@ from telesmooth.diagrams.teleoperation import (
 )
 from telesmooth.systems.laser_tracker import tracker_record
 from telesmooth.smoothing.metrics import VIOLATION_RTOL, finite_differences, limit_statistics
+from telesmooth.smoothing.kalman import start_prior
 from telesmooth.smoothing.model import JerkModel
 from telesmooth.smoothing.offline import (
     HISTORY_LENGTH,
@@ -382,7 +383,8 @@ def plan_offline(scenario: Scenario, *, constraint: str = "trajectory", max_velo
     result = solve_offline_cks(
         z, model, max_acceleration=smoother.max_acceleration_rad_per_s2,
         max_jerk=smoother.max_jerk_rad_per_s3, max_velocity=velocity, constraint=constraint,
-        rest_at_end=True, start_position=q_start, joint_names=names)
+        rest_at_end=True, start_position=q_start, joint_names=names,
+        prior=start_prior(smoother.start_prior, q_start, model))
     summary = OfflineSolveSummary(
         is_success=bool(result.is_success), solution_results=result.solution_results,
         solver_name=result.solver_name, objective=result.objective,

@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 
+from telesmooth.smoothing.kalman import START_PRIORS
 from telesmooth.smoothing.methods import METHODS, SmoothingSettings, smooth_recording
 from telesmooth.smoothing.metrics import smoothing_metrics
 from telesmooth.smoothing.model import DEFAULT_LAG, DEFAULT_R, DEFAULT_SIGMA
@@ -69,6 +70,10 @@ def _add_smooth_parser(subparsers) -> None:
                    help="offline-cks: 'state' (the paper's state box, soft) or 'trajectory' "
                    "(hard limits on the finite differences of the sent positions)")
     p.add_argument("--rest-at-end", action="store_true", help="offline-cks: end at rest")
+    p.add_argument("--start-prior", choices=START_PRIORS, default="rest",
+                   help="offline-ks, offline-cks: 'rest' (default: the robot at rest at the "
+                   "first sample's pose one tick before it, as the online smoothers start) or "
+                   "'loose' (the paper's prior; the estimate may start moving: a jerk step)")
     p.add_argument("--solver", choices=OFFLINE_SOLVERS, default="drake",
                    help="offline-cks: 'drake' (Drake MathematicalProgram + Clarabel; the banded "
                    "interior point takes over for a joint Clarabel cannot solve) or 'banded-ip' "
@@ -117,6 +122,7 @@ def run_smooth(args) -> int:
         lag=args.lag,
         constraint=args.constraint,
         rest_at_end=args.rest_at_end,
+        start_prior=args.start_prior,
         offline_solver=args.solver,
         reduced_q=ReducedQConfig(variant=args.variant, step_rule=args.sigma_step, rho=args.rho,
                                  sigma_min=args.sigma_min, trigger=args.trigger),

@@ -30,6 +30,7 @@ from telesmooth.diagrams.offline import (
 from telesmooth.diagrams.scenario import load_scenario, make_haptic_recording
 from telesmooth.smoothing.metrics import VIOLATION_RTOL
 from telesmooth.smoothing.model import JerkModel
+from telesmooth.smoothing.kalman import rest_start_prior
 from telesmooth.smoothing.offline import OfflineCksResult, solve_offline_cks
 from telesmooth.systems.laser_tracker import tracker_record
 
@@ -84,12 +85,14 @@ def test_samples_are_the_fifo_samples_of_the_ik_targets(scenario, plan):
 
 
 def test_plan_equals_an_independent_offline_cks_solve(scenario, plan):
+    """The plan starts, as the robot, at rest at its start pose (the rest start prior)."""
     smoother = scenario.smoother
     model = JerkModel.make(TICK, smoother.sigma, smoother.r, num_joints=3)
     dut = solve_offline_cks(plan.q_raw, model,
                             max_acceleration=smoother.max_acceleration_rad_per_s2,
                             max_jerk=smoother.max_jerk_rad_per_s3, constraint="trajectory",
-                            rest_at_end=True)
+                            rest_at_end=True, start_position=plan.q_start,
+                            prior=rest_start_prior(plan.q_start, model))
     assert dut.is_success and plan.solver.is_success
     assert plan.solver.solution_results == dut.solution_results
     np.testing.assert_allclose(plan.states_planned, dut.states, rtol=0, atol=1e-12)
