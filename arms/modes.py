@@ -25,6 +25,7 @@ Drake MultibodyPlant of an arm description.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -111,6 +112,31 @@ def vibration_modes(mass_matrix, stiffness, damping) -> VibrationModes:
                           num_decays=int(np.count_nonzero(real)))
 
 
+@functools.lru_cache(maxsize=8)
+def _flexible_plant(arm):
+    """A continuous MultibodyPlant of ``arm``'s flexible model and, per state coordinate, the
+    stiffness and damping of its drive (built once per description: parsing costs ~0.3 s)."""
+    from pydrake.multibody.plant import MultibodyPlant
+
+    from telesmooth.arms.drake_models import add_arm
+
+    plant = MultibodyPlant(0.0)     # no SceneGraph: the mass matrix needs no geometry
+    instance = add_arm(plant, arm, flexible=True)
+    plant.Finalize()
+    size = plant.num_velocities()
+    stiffness, damping = np.zeros(size), np.zeros(size)
+    motors = []
+    for joint in arm.joints:
+        motor = plant.GetJointByName(f"{joint.name}_motor", instance)
+        deflection = plant.GetJointByName(f"{joint.name}_deflection", instance)
+        motors.append(motor)
+        stiffness[motor.velocity_start()] = joint.motor_kp_n_m_per_rad
+        damping[motor.velocity_start()] = joint.motor_kd_n_m_s_per_rad
+        stiffness[deflection.velocity_start()] = joint.stiffness_n_m_per_rad
+        damping[deflection.velocity_start()] = joint.damping_n_m_s_per_rad
+    return plant, tuple(motors), stiffness, damping
+
+
 def plant_modes(arm, positions_rad) -> VibrationModes:
     """The vibration modes of ``arm``'s flexible model at rest at ``positions_rad``.
 
@@ -122,26 +148,12 @@ def plant_modes(arm, positions_rad) -> VibrationModes:
     Raises:
         ValueError: if ``positions_rad`` does not have one finite value per joint.
     """
-    from pydrake.multibody.plant import MultibodyPlant
-
-    from telesmooth.arms.drake_models import add_arm
-
     q = np.asarray(positions_rad, dtype=float)
     if q.shape != (arm.num_joints,) or not np.all(np.isfinite(q)):
         raise ValueError(f"positions_rad = {positions_rad!r} must be {arm.num_joints} finite "
                          f"angles (joints {arm.joint_names})")
-    plant = MultibodyPlant(0.0)     # no SceneGraph: the mass matrix needs no geometry
-    instance = add_arm(plant, arm, flexible=True)
-    plant.Finalize()
+    plant, motors, stiffness, damping = _flexible_plant(arm)
     context = plant.CreateDefaultContext()
-    size = plant.num_velocities()
-    stiffness, damping = np.zeros(size), np.zeros(size)
-    for joint, angle in zip(arm.joints, q):
-        motor = plant.GetJointByName(f"{joint.name}_motor", instance)
-        deflection = plant.GetJointByName(f"{joint.name}_deflection", instance)
+    for motor, angle in zip(motors, q):
         motor.set_angle(context, angle)
-        stiffness[motor.velocity_start()] = joint.motor_kp_n_m_per_rad
-        damping[motor.velocity_start()] = joint.motor_kd_n_m_s_per_rad
-        stiffness[deflection.velocity_start()] = joint.stiffness_n_m_per_rad
-        damping[deflection.velocity_start()] = joint.damping_n_m_s_per_rad
     return vibration_modes(plant.CalcMassMatrix(context), stiffness, damping)

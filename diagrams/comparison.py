@@ -80,6 +80,7 @@ from telesmooth.smoothing.validation import as_per_joint
 __all__ = [
     "COMPARE_METHODS",
     "Comparison",
+    "LEAST_DEFORMATION",
     "ComparisonSetup",
     "OperatorSamples",
     "SETTLED_TOLERANCE_M",
@@ -98,6 +99,10 @@ COMPARE_METHODS = ("original", "kf", "kf-predictor", "offline-ks", "offline-cks"
                    "offline-cks-trajectory", "offline-hard", "bmfls", "online-cks",
                    "online-hard", "ruckig")
 """Every method :func:`compare_methods` knows, in the order of the paper's Table 2."""
+
+LEAST_DEFORMATION = "offline-hard"
+"""The reference for how much deformation the limits force (the commands closest to the
+operator within them): reports set every method's E_def beside it."""
 
 _REFERENCE = "original"
 

@@ -60,6 +60,7 @@ __all__ = [
     "HAPTIC_SOURCES",
     "HapticScenario",
     "Scenario",
+    "describe_operator",
     "load_scenario",
     "make_haptic_recording",
 ]
@@ -238,6 +239,22 @@ class Scenario:
         if self.workspace is not None:
             return self.workspace
         return AIR_BEARING_WORKSPACE if self.arm == "air_bearing_arm" else SPACE_ARM_WORKSPACE
+
+
+def describe_operator(scenario: Scenario) -> str:
+    """Who operates, for a report: the LASA shape, demonstration and speed, the synthetic
+    operator's seed, the recording's file, or a live device."""
+    haptic = scenario.haptic
+    if haptic.source == "lasa":
+        mapping = haptic.lasa_mapping
+        speed = WorkspaceMapping().time_scale / mapping.time_scale
+        return (f"the LASA demonstration `{haptic.lasa_shape}` #{haptic.lasa_demo} at "
+                f"{speed:g}× the demonstrator's hand speed (time_scale {mapping.time_scale:g})")
+    if haptic.source == "synthetic":
+        return f"the synthetic operator (seed {haptic.synthetic.seed})"
+    if haptic.source == "file":
+        return f"the recording `{haptic.file}`"
+    return "a live haptic device over LCM"
 
 
 def make_haptic_recording(scenario: Scenario) -> HapticRecording | None:

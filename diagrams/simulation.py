@@ -18,14 +18,15 @@ import numpy as np
 from pydrake.systems.analysis import Simulator
 
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_forward_kinematics
-from telesmooth.diagrams.scenario import Scenario
+from telesmooth.diagrams.scenario import Scenario, describe_operator
 from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram, uplink_packets
 from telesmooth.smoothing.metrics import smoothing_metrics, tracking_errors
 from telesmooth.smoothing.validation import as_per_joint
 from telesmooth.systems.laser_tracker import tracker_record
 
-__all__ = ["SimulationRecord", "plant_summary", "plant_text", "run_duration_s", "run_metrics",
-           "sample_at", "simulate", "tool_positions"]
+__all__ = ["ResponseErrors", "SimulationRecord", "plant_summary", "plant_text",
+           "response_errors", "run_duration_s", "run_metrics", "sample_at", "simulate",
+           "tool_positions"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -237,6 +238,45 @@ def sample_at(times, values, at):
     return values[np.clip(index, 0, len(times) - 1)]
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class ResponseErrors:
+    """The robot's response to each packet k, read when the set-point has reached it.
+
+    Attributes:
+        response_t_s: t_k + ramp, the instant the tracker is read, s, (M,).
+        response_m: e(k) = ‖FK(q_sent,k) − x_tracker(t_k + ramp)‖, m, (M,).
+        chain_t_s: The same instants for the packets that carry an operator sample, s, (C,).
+        chain_m: ‖FK(q_operator(t_k − delay)) − x_tracker(t_k + ramp)‖, m, (C,).
+        ramp_s: The interpolator's ramp (0 for zero-order hold), s.
+    """
+
+    response_t_s: np.ndarray
+    response_m: np.ndarray
+    chain_t_s: np.ndarray
+    chain_m: np.ndarray
+    ramp_s: float
+
+
+def response_errors(record: SimulationRecord) -> ResponseErrors:
+    """e of every packet whose response instant lies in the tracker's record (the tracker
+    sample taken at that instant: each record row is at its own sample time)."""
+    scenario = record.scenario
+    ramp = scenario.onboard.interpolator.ramp_duration_s \
+        if scenario.onboard.interpolator.interpolation == "linear" else 0.0
+    sample_times = record.packet_t_s - scenario.fifo.delay_s
+    response_times = record.packet_t_s + ramp
+    inside = response_times <= record.tracker_t_s[-1]
+    measured = sample_at(record.tracker_t_s, record.tool_position_m, response_times[inside])
+    e_response = tracking_errors(tool_positions(scenario, record.q_sent[inside]), measured)
+    both = inside & (sample_times >= 0.0)
+    operator = tool_positions(
+        scenario, sample_at(record.target_t_s, record.q_target, sample_times[both]))
+    e_chain = tracking_errors(
+        operator, sample_at(record.tracker_t_s, record.tool_position_m, response_times[both]))
+    return ResponseErrors(response_t_s=response_times[inside], response_m=e_response,
+                          chain_t_s=response_times[both], chain_m=e_chain, ramp_s=ramp)
+
+
 def run_metrics(record: SimulationRecord) -> dict:
     """SPEC §6 figures of a run, JSON-ready.
 
@@ -269,19 +309,12 @@ def run_metrics(record: SimulationRecord) -> dict:
         smoothed_positions=sent, original_positions=original, dt_s=period,
         max_acceleration=a_max, max_jerk=j_max, smoothed_states=states,
         forward_kinematics=fk, joint_names=names)
-    ramp = scenario.onboard.interpolator.ramp_duration_s \
-        if scenario.onboard.interpolator.interpolation == "linear" else 0.0
-    response_times = record.packet_t_s + ramp
-    inside = response_times <= record.tracker_t_s[-1]
-    measured = sample_at(record.tracker_t_s, record.tool_position_m, response_times[inside])
-    e_response = tracking_errors(fk(record.q_sent[inside]), measured)
-    both = inside & valid
-    operator = fk(sample_at(record.target_t_s, record.q_target, sample_times[both]))
-    e_chain = tracking_errors(
-        operator, sample_at(record.tracker_t_s, record.tool_position_m, response_times[both]))
+    response = response_errors(record)
+    e_response, e_chain, ramp = response.response_m, response.chain_m, response.ramp_s
     deflection = record.q_link - record.q_motor
     return {
         "scenario": {"arm": scenario.arm, "haptic_source": scenario.haptic.source,
+                     "operator": describe_operator(scenario),
                      "method": scenario.smoother.method,
                      "on_collision": scenario.fifo.on_collision},
         "duration_s": record.duration_s,

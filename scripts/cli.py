@@ -312,7 +312,7 @@ def run_compare(args) -> int:
 
 
 def _add_experiment_parser(subparsers) -> None:
-    from telesmooth.diagrams.experiment import EXPERIMENT_METHODS, ExperimentConfig
+    from telesmooth.diagrams.experiment import EXPERIMENT_METHODS, KF_FORMS, ExperimentConfig
 
     defaults = ExperimentConfig()
     p = subparsers.add_parser(
@@ -349,6 +349,20 @@ def _add_experiment_parser(subparsers) -> None:
     p.add_argument("--quick", action="store_true",
                    help="a small grid (shapes Angle,CShape; sensitivity and C8 on Angle) to "
                         "check the set-up in a few minutes")
+    p.add_argument("--speeds", default="1",
+                   help="operator speeds, multiples of the demonstrator's hand speed (the LASA "
+                        "time scale is divided by each), comma list (default 1)")
+    p.add_argument("--plants", default="lab",
+                   help="plant drive presets, comma list of lab, lightweight (default lab)")
+    p.add_argument("--kf-form", choices=KF_FORMS, default=defaults.kf_form,
+                   help="the KF form every claim uses; the other is reported beside it "
+                        f"(default {defaults.kf_form}: the a-posteriori filter)")
+    p.add_argument("--shard", default=None, metavar="K/N",
+                   help="run only every N-th task from the K-th (split a grid across runs or "
+                        "machines; --merge joins the folders)")
+    p.add_argument("--merge", default=None, metavar="DIR,DIR",
+                   help="run nothing: join the records of these folders (the same grid, e.g. "
+                        "its shards) into --out and write the report")
     _add_offline_solver_argument(p)
     p.set_defaults(handler=run_experiment_command)
 
@@ -369,9 +383,24 @@ def _shape_list(text: str, option: str) -> tuple:
     return shapes
 
 
+def _number_list(text: str, option: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(part) for part in text.split(",") if part.strip())
+    except ValueError:
+        raise ValueError(f"{option} = {text[:60]!r} must be a comma list of numbers") from None
+    if not values:
+        raise ValueError(f"{option} = {text[:60]!r} names no value")
+    return values
+
+
 def run_experiment_command(args) -> int:
     from telesmooth.diagrams.experiment import ExperimentConfig
-    from telesmooth.scripts.experiment_report import parse_demos, write_experiment_report
+    from telesmooth.scripts.experiment_report import (
+        merge_experiment_reports,
+        parse_demos,
+        parse_shard,
+        write_experiment_report,
+    )
 
     base = _load_scenario(args)
     if args.quick:
@@ -383,14 +412,24 @@ def run_experiment_command(args) -> int:
     if not shapes:
         raise ValueError("--shapes names no shape")
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    plants = tuple(p.strip() for p in args.plants.split(",") if p.strip())
     config = ExperimentConfig(shapes=shapes, demos=parse_demos(args.demos), methods=methods,
                               plant_time_step_s=args.plant_step, settle_s=args.settle,
                               sensitivity_shapes=sensitivity, c8_shapes=c8,
-                              offline_solver=args.solver)
+                              offline_solver=args.solver,
+                              speeds=_number_list(args.speeds, "--speeds"), plants=plants,
+                              kf_form=args.kf_form)
     if args.workers < 0:
         raise ValueError(f"--workers = {args.workers} must be >= 0")
-    report = write_experiment_report(args.out, base, config, workers=args.workers,
-                                     scheduler=args.scheduler)
+    if args.merge is not None:
+        sources = [part.strip() for part in args.merge.split(",") if part.strip()]
+        if not sources:
+            raise ValueError(f"--merge = {args.merge[:60]!r} names no folder")
+        report = merge_experiment_reports(args.out, sources, base, config)
+    else:
+        report = write_experiment_report(args.out, base, config, workers=args.workers,
+                                         scheduler=args.scheduler,
+                                         shard=parse_shard(args.shard))
     print(f"report: {report}")
     return 0
 

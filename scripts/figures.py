@@ -8,18 +8,25 @@ __all__ = ["FigureWriter"]
 
 
 class FigureWriter:
-    """Writes figures into a report folder and remembers (title, file name) in order."""
+    """Writes figures into a report folder and remembers (title, file name) in order.
 
-    def __init__(self, out: Path, *, dpi: int = 110):
+    ``prefix`` goes in front of every file name and ``title_suffix`` after every title (one
+    report with several sets of the same figures, e.g. one per experiment cell)."""
+
+    def __init__(self, out: Path, *, dpi: int = 110, prefix: str = "",
+                 title_suffix: str = ""):
         self.out = Path(out)
         self.dpi = dpi
+        self.prefix = prefix
+        self.title_suffix = title_suffix
         self.figures: list[tuple[str, str]] = []
 
     def save(self, fig, name: str, title: str) -> None:
-        """Lays out, writes ``out/name`` and closes ``fig``."""
+        """Lays out, writes ``out/<prefix><name>`` and closes ``fig``."""
         import matplotlib.pyplot as plt
 
+        name = self.prefix + name
         fig.tight_layout()
         fig.savefig(self.out / name, dpi=self.dpi)
         plt.close(fig)
-        self.figures.append((title, name))
+        self.figures.append((title + self.title_suffix, name))
