@@ -374,8 +374,15 @@ def run_task(task: ExperimentTask, base: Scenario, config: ExperimentConfig) -> 
                                        plant=task.plant, speed=task.speed)
         setup = prepare_comparison(scenario, _samples(scenario))
         base_method, settings = _settings(setup, task, config.offline_solver)
-        run = run_method(setup, task.method, settings=settings, base_method=base_method,
-                         label=task.label)
+        try:
+            run = run_method(setup, task.method, settings=settings, base_method=base_method,
+                             label=task.label)
+        except (RuntimeError, ValueError, ArithmeticError) as error:
+            # A method that fails on one demonstration is a finding, reported with the
+            # others; it does not end the grid.
+            record["error"] = f"{type(error).__name__}: {str(error)[:400]}"
+            record["wall_s"] = time.perf_counter() - started
+            return record
         record["metrics"] = {**run_summary(run.metrics),
                              "num_samples": int(setup.q_original.shape[0])}
         if task.method == "original":
@@ -523,9 +530,12 @@ def summarize(records: list[dict]) -> dict:
         "paired": {"<method> / ruckig": paired_ratio(...)} for the methods of
         :data:`PAIRED_AGAINST_RUCKIG` (when both ran), "least_deformation": {label:
         paired_ratio(label, offline-hard)} for every label (when offline-hard ran),
-        "records": records with P}.
+        "failed": [{"key", "error"}] of the runs whose method failed (left out of every
+        figure), "records": the other records, with P}.
     """
-    records = _with_p(records)
+    failed = [{"key": r["key"] if "key" in r else f"{r['shape']}/{r['demo']} {r['label']}",
+               "error": r["error"]} for r in records if "error" in r]
+    records = _with_p([r for r in records if "error" not in r])
     groups: dict[str, list[dict]] = {}
     for record in records:
         if record["kind"] == "run" and record["study"] == "main":
@@ -564,7 +574,8 @@ def summarize(records: list[dict]) -> dict:
                  "lowest_hz_max": float(lowest.max()), "lowest_zeta_min": float(zeta.min()),
                  "lowest_zeta_max": float(zeta.max())}
     return {"main": main, "sensitivity": sensitivity, "c8": c8, "paired": paired,
-            "least_deformation": least, "plant_modes": plant, "records": records}
+            "least_deformation": least, "plant_modes": plant, "failed": failed,
+            "records": records}
 
 
 PAIRED_AGAINST_RUCKIG = ("online-hard", "offline-cks-trajectory")

@@ -279,6 +279,12 @@ def _cell_section(cell: str, summary: dict, claims: dict, figures, kf_form: str)
                   f"(over the {plant['n']} demonstrations).", ""]
     lines += ["### Main table: mean (worst case) over the demonstrations", "",
               main_table_markdown(summary), ""]
+    if summary.get("failed"):
+        lines += [f"**{len(summary['failed'])} run(s) failed** and are left out of every "
+                  "figure of this cell:", ""]
+        lines += [f"- `{row['key']}`: {row['error']}" for row in summary["failed"][:20]]
+        lines += ([f"- … and {len(summary['failed']) - 20} more (experiment.json)"]
+                  if len(summary["failed"]) > 20 else []) + [""]
     lines += [f"### Claims (KF = `{kf_form}`)", "", _claims_markdown(claims, "####")]
     paired = {name: row for name, row in summary.get("paired", {}).items() if row["n"]}
     if paired:

@@ -482,3 +482,26 @@ def test_shards_merge_into_the_report_of_the_whole_grid(base, tmp_path, monkeypa
     with pytest.raises(ValueError, match="another experiment"):
         merge_experiment_reports(tmp_path / "m2", [tmp_path / "part1"], base,
                                  dataclasses.replace(config, kf_form="kf-predictor"), **quiet)
+
+
+def test_a_method_that_fails_on_one_demonstration_is_reported_not_fatal(base, monkeypatch,
+                                                                         tmp_path):
+    from telesmooth.diagrams import experiment
+    from telesmooth.scripts.experiment_report import write_experiment_report
+
+    real = experiment.run_method
+
+    def fails_for_bmfls(setup, method, **kwargs):
+        if method == "bmfls":
+            raise RuntimeError("method 'bmfls' failed: forced")
+        return real(setup, method, **kwargs)
+
+    monkeypatch.setattr(experiment, "run_method", fails_for_bmfls)
+    report = write_experiment_report(tmp_path / "exp", base, small_config(), workers=0,
+                                     progress=lambda line: None)
+    data = json.loads((tmp_path / "exp" / "experiment.json").read_text())
+    cell = data["cells"]["lab, 1×"]
+    assert set(cell["main"]) == {"original"}
+    assert [row["error"] for row in cell["failed"]] == [
+        "RuntimeError: method 'bmfls' failed: forced"]
+    assert "1 run(s) failed" in report.read_text()
