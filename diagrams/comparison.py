@@ -32,7 +32,7 @@ Metrics per method (index i = operator sample, 0 ≤ i < N):
   carrying the operator's last real sample (the smoother's tail and the flexible links ringing
   after the operator stopped); ``settling_time_s``: from the operator's last sample until the
   tool stays within :data:`SETTLED_TOLERANCE_M` of its final position (includes the method's
-  delay).
+  delay); NaN, with ``settled`` false, when it is still outside at the end of the run.
 * ``latency_s``: the shift τ that best aligns the tool track with the operator's intent
   (:func:`response_latency`); ``added_latency_s`` = τ − τ of the original.
 * ``presim_violations``: samples the pre-simulator would reject (collision within the safety
@@ -213,6 +213,7 @@ def run_summary(metrics: dict) -> dict:
         "operator_error_mean_m": metrics["operator_error_m"]["mean"],
         "residual_motion_m": metrics["residual_motion_m"],
         "settling_time_s": metrics["settling_time_s"],
+        "settled": float(metrics["settled"]),
         "latency_s": metrics["latency_s"],
         "link_deflection_max_rad": float(np.max(metrics["link_deflection_max_abs_rad"])),
         "presim_violations": metrics["presim_violations"]["total"],
@@ -478,9 +479,13 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
     metrics["residual_motion_m"] = float(distance_to_final[after].max()) \
         if after.any() else math.nan
     outside = np.flatnonzero(distance_to_final > SETTLED_TOLERANCE_M)
+    # Still outside at the end of the run: not settled (NaN; the time is unknown, not the
+    # run's length).
+    metrics["settled"] = bool(outside.size == 0 or outside[-1] < tracker_t.size - 1)
     metrics["settling_time_s"] = (
         0.0 if outside.size == 0 else
-        max(0.0, float(tracker_t[outside[-1]]) - (num_operator_samples - 1) * period))
+        max(0.0, float(tracker_t[outside[-1]]) - (num_operator_samples - 1) * period)
+        if metrics["settled"] else math.nan)
     metrics["latency_s"] = response_latency(
         setup.operator_tool_m, setup.t_s, tracker_t, tool,
         max_latency_s=min(_MAX_LATENCY_S, float(tracker_t[-1] - setup.t_s[0]) / 2))

@@ -54,7 +54,7 @@ _COLUMNS = (
     ("P [%]", "improvement_ratio_percent", "{:.1f}"),
     ("vs operator mean [mm]", "operator_error_mean_m", "×1000{:.3f}"),
     ("residual motion [mm]", "residual_motion_m", "×1000{:.3f}"),
-    ("settling [s]", "settling_time_s", "{:.2f}"),
+    ("settling [s]", "settling_time_s", "settling"),
     ("added latency [s]", "added_latency_s", "{:.2f}"),
     ("pre-sim violations", "presim_violations", "{}"),
 )
@@ -65,10 +65,14 @@ def _cell(row: dict, key, fmt: str) -> str:
     values = [row[k] for k in keys]
     if fmt.startswith("×1000"):
         fmt, values = fmt[len("×1000"):], [1000.0 * v for v in values]
+    if fmt == "settling" and not row.get("settled", True):
+        return "not settled in the run"
     if any(isinstance(v, float) and math.isnan(v) for v in values):
         return "n/a"
     if fmt == "ratio":
         return limit_ratio(values[0])
+    if fmt == "settling":
+        return f"{values[0]:.2f}"
     return fmt.format(*values)
 
 

@@ -64,7 +64,7 @@ _COLUMNS = (
     ("P [%]", "improvement_ratio_percent", 1.0, "{:.1f}"),
     ("vs operator [mm]", "operator_error_mean_m", 1e3, "{:.2f}"),
     ("residual [mm]", "residual_motion_m", 1e3, "{:.3f}"),
-    ("settling [s]", "settling_time_s", 1.0, "{:.1f}"),
+    ("settling [s]", "settling_time_s", 1.0, "settling"),
     ("added latency [s]", "added_latency_s", 1.0, "{:.2f}"),
 )
 
@@ -73,11 +73,18 @@ def _format(value, fmt: str) -> str:
     return limit_ratio(value) if fmt == "ratio" else fmt.format(value)
 
 
-def _cell(stats: dict, scale: float, fmt: str) -> str:
+def _cell(stats: dict, scale: float, fmt: str, figures: dict | None = None) -> str:
+    unsettled = ""
+    if fmt == "settling":
+        # Runs still moving at their end have no settling time: counted, not averaged.
+        settled = (figures or {}).get("settled")
+        if settled and settled["mean"] is not None and settled["mean"] < 1.0:
+            unsettled = f"; {round((1 - settled['mean']) * settled['n'])} not settled"
+        fmt = "{:.1f}"
     mean, worst = stats["mean"], stats["worst"]
     if mean is None:
-        return "n/a"
-    return f"{_format(scale * mean, fmt)} ({_format(scale * worst, fmt)})"
+        return "n/a" + unsettled
+    return f"{_format(scale * mean, fmt)} ({_format(scale * worst, fmt)}){unsettled}"
 
 
 def _least_deformation_cell(row) -> str:
@@ -98,7 +105,7 @@ def main_table_markdown(summary: dict) -> str:
     lines = ["| method | " + " | ".join([title for title, *_ in _COLUMNS] + extra) + " |",
              "|---|" + "---|" * (len(_COLUMNS) + len(extra))]
     for label, figures in main.items():
-        cells = [_cell(figures[key], scale, fmt) for _, key, scale, fmt in _COLUMNS]
+        cells = [_cell(figures[key], scale, fmt, figures) for _, key, scale, fmt in _COLUMNS]
         if least:
             cells.append(_least_deformation_cell(least.get(label)))
         lines.append(f"| {label} | " + " | ".join(cells) + " |")

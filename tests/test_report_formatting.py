@@ -34,3 +34,18 @@ def test_every_violation_reads_above_one():
 ])
 def test_the_operator_is_named(text, expected):
     assert describe_operator(load_scenario(scenario_text=text)) == expected
+
+
+def test_a_run_still_moving_at_its_end_is_not_given_a_settling_time():
+    from telesmooth.scripts.compare_report import _cell as compare_cell
+    from telesmooth.scripts.experiment_report import _cell as experiment_cell
+
+    assert compare_cell({"settling_time_s": float("nan"), "settled": 0.0}, "settling_time_s",
+                        "settling") == "not settled in the run"
+    assert compare_cell({"settling_time_s": 1.234, "settled": 1.0}, "settling_time_s",
+                        "settling") == "1.23"
+    stats = {"mean": 1.25, "worst": 2.0, "n": 4}
+    figures = {"settled": {"mean": 0.5, "n": 4}}
+    assert experiment_cell(stats, 1.0, "settling", figures) == "1.2 (2.0); 2 not settled"
+    assert experiment_cell(stats, 1.0, "settling", {"settled": {"mean": 1.0, "n": 4}}) == \
+        "1.2 (2.0)"
