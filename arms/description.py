@@ -283,18 +283,19 @@ DRIVE_FIELDS = ("stiffness_n_m_per_rad", "damping_n_m_s_per_rad", "rotor_inertia
 
 PLANT_PRESETS = ("lab", "lightweight")
 """Named sets of drive parameters: ``"lab"``, each arm's own numbers above (the laboratory
-set-up: lowest mode about 2.7 Hz with damping ratio about 0.07 at the default start pose of
+set-up: lowest lightly damped mode 2.66 Hz with damping ratio 0.072 at the default start pose of
 the air-bearing arm); ``"lightweight"``, a lightweight space arm: springs 10× softer and
-dampers about 3× weaker, lowest mode 0.9 Hz (air-bearing arm at its default start pose) and
-1.2 Hz (6-DOF arm at the OneOfEverything start pose) with damping ratio about 0.02 (for
-scale: the shuttle arm's unloaded first mode is 0.35-0.71 Hz depending on configuration).
-The modes depend on the pose: :func:`telesmooth.arms.modes.plant_modes` computes them."""
+dampers about half as strong, lowest lightly damped mode 0.90 Hz with damping ratio 0.020
+(air-bearing arm at its default start pose) and 1.24 Hz with 0.021 (6-DOF arm at the
+OneOfEverything start pose). For scale: the shuttle arm's unloaded first mode is 0.35-0.71 Hz
+depending on configuration. The modes depend on the pose:
+:func:`telesmooth.arms.modes.plant_modes` computes them."""
 
 _LIGHTWEIGHT_DRIVES = {
     "space_arm": {"stiffness_n_m_per_rad": (200.0, 200.0, 100.0, 20.0, 10.0, 2.0),
-                  "damping_n_m_s_per_rad": (0.6, 0.6, 0.3, 0.06, 0.03, 0.006)},
+                  "damping_n_m_s_per_rad": (1.0, 1.0, 0.5, 0.1, 0.05, 0.01)},
     "air_bearing_arm": {"stiffness_n_m_per_rad": (50.0, 30.0, 10.0),
-                        "damping_n_m_s_per_rad": (0.15, 0.09, 0.03)},
+                        "damping_n_m_s_per_rad": (0.3, 0.18, 0.06)},
 }
 
 

@@ -15,8 +15,13 @@ products vanish at rest; the servo's effort limit is not reached by small motion
 Each pair of complex eigenvalues λ, λ̄ of the first-order form [[0, I], [−M⁻¹K, −M⁻¹C]] is a
 vibration mode with natural frequency ω_n = |λ| (f_n = ω_n/2π) and damping ratio
 ζ = −Re λ/|λ|; real eigenvalues are decays without oscillation (an overdamped servo) and are
-not modes. The lowest mode decides how hard a command's acceleration and jerk ring the arm:
-this is the paper's argument for smoothing them.
+not modes. Modes with ζ below :data:`LIGHTLY_DAMPED` ring: the lowest of them decides how hard
+a command's acceleration and jerk ring the arm (the paper's argument for smoothing them); the
+motor servos' modes are near critical damping and do not ring.
+
+Gravity is not in the model: the arms move in zero gravity or, for the air-bearing arm, in a
+horizontal plane (the plant's default). With gravity the arm at rest would need servo torques
+and springs preloaded, which this linearisation about zero deflection does not include.
 
 :func:`vibration_modes` is the numerics (numpy only); :func:`plant_modes` builds M from a
 Drake MultibodyPlant of an arm description.
@@ -29,15 +34,20 @@ import functools
 
 import numpy as np
 
-__all__ = ["VibrationModes", "plant_modes", "vibration_modes"]
+__all__ = ["LIGHTLY_DAMPED", "VibrationModes", "plant_modes", "vibration_modes"]
 
 _OSCILLATION_RTOL = 1e-9
 """An eigenvalue whose imaginary part is below this share of its modulus is a real decay."""
 
 
+LIGHTLY_DAMPED = 0.3
+"""Modes with a damping ratio below this ring: they are the arm's vibration modes. The others
+(e.g. the critically damped motor servos, ζ ≈ 1) decay without visible ringing."""
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class VibrationModes:
-    """Vibration modes, lowest natural frequency first.
+    """Oscillatory modes, lowest natural frequency first.
 
     Attributes:
         natural_frequency_hz: f_n = |λ|/2π of each mode, Hz, (m,), ascending.
@@ -50,18 +60,40 @@ class VibrationModes:
     damping_ratio: np.ndarray
     num_decays: int
 
+    @property
+    def ringing(self) -> np.ndarray:
+        """Mask of the lightly damped modes (ζ < :data:`LIGHTLY_DAMPED`), the ones that ring."""
+        return self.damping_ratio < LIGHTLY_DAMPED
+
+    def lowest_ringing(self) -> tuple[float, float] | None:
+        """(f_n in Hz, ζ) of the lowest lightly damped mode, or None."""
+        index = np.flatnonzero(self.ringing)
+        if index.size == 0:
+            return None
+        return float(self.natural_frequency_hz[index[0]]), float(self.damping_ratio[index[0]])
+
     def as_dict(self, count: int | None = None) -> dict:
-        """JSON-ready: the lowest ``count`` modes (all if None)."""
+        """JSON-ready: the lowest ``count`` modes (all if None), and the lowest ringing one."""
         keep = slice(None) if count is None else slice(0, count)
+        lowest = self.lowest_ringing()
         return {"natural_frequency_hz": self.natural_frequency_hz[keep].tolist(),
                 "damping_ratio": self.damping_ratio[keep].tolist(),
+                "lowest_ringing_hz": None if lowest is None else lowest[0],
+                "lowest_ringing_damping_ratio": None if lowest is None else lowest[1],
                 "num_decays": self.num_decays}
 
     def describe(self, count: int = 3) -> str:
-        """E.g. ``"0.84 Hz (ζ 0.021), 2.95 Hz (ζ 0.030), 6.10 Hz (ζ 0.049)"``."""
-        parts = [f"{f:.3g} Hz (ζ {z:.3f})" for f, z in
-                 zip(self.natural_frequency_hz[:count], self.damping_ratio[:count])]
-        return ", ".join(parts) if parts else "no oscillatory mode"
+        """The lowest ``count`` lightly damped modes and how many better damped ones there
+        are below the last of them, e.g. ``"2.66 Hz (ζ 0.072), 3.41 Hz (ζ 0.074), 14.7 Hz
+        (ζ 0.050); 3 servo modes with ζ ≥ 0.3 in between"``."""
+        index = np.flatnonzero(self.ringing)[:count]
+        parts = [f"{self.natural_frequency_hz[i]:.3g} Hz (ζ {self.damping_ratio[i]:.3f})"
+                 for i in index]
+        if not parts:
+            return "no lightly damped mode"
+        others = int(np.count_nonzero(~self.ringing[:index[-1] + 1]))
+        return ", ".join(parts) + (f"; {others} servo mode(s) with ζ ≥ {LIGHTLY_DAMPED} in "
+                                   "between" if others else "")
 
 
 def vibration_modes(mass_matrix, stiffness, damping) -> VibrationModes:

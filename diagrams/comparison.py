@@ -24,7 +24,9 @@ Metrics per method (index i = operator sample, 0 ≤ i < N):
 * ``position_deformation_rad``, ``velocity_deformation_rad_per_s``, ``cartesian_deformation_m``:
   estimate of sample i against z_i (SPEC §6 Def_q, E_def).
 * e(i) = ‖FK(q̂_i) − x^A(t_{i+d} + ramp)‖: the robot's response to the packet carrying sample i,
-  with the tracker read when the interpolator has reached that packet. e_ORG is e of the
+  with the tracker read when the interpolator has reached that packet (the tracker sample
+  taken at that instant; with a zero-order hold, at the end of the packet's hold:
+  :func:`~telesmooth.diagrams.simulation.response_delay_s`). e_ORG is e of the
   ``original`` run, e_SMT that of the method, P = (Σe_ORG − Σe_SMT)/Σe_ORG × 100 %.
 * ``operator_error_m``: ‖FK(z_i) − x^A(t_{i+d} + ramp)‖, the error against the operator's
   intent (at most E_def + e_SMT by the triangle inequality).
@@ -32,7 +34,8 @@ Metrics per method (index i = operator sample, 0 ≤ i < N):
   carrying the operator's last real sample (the smoother's tail and the flexible links ringing
   after the operator stopped); ``settling_time_s``: from the operator's last sample until the
   tool stays within :data:`SETTLED_TOLERANCE_M` of its final position (includes the method's
-  delay); NaN, with ``settled`` false, when it is still outside at the end of the run.
+  delay); NaN, with ``settled`` false, when it has not stayed inside for the run's last
+  :data:`SETTLED_HOLD_S`.
 * ``latency_s``: the shift τ that best aligns the tool track with the operator's intent
   (:func:`response_latency`); ``added_latency_s`` = τ − τ of the original.
 * ``presim_violations``: samples the pre-simulator would reject (collision within the safety
@@ -63,7 +66,12 @@ from telesmooth.diagrams.offline import (
     validate_joint_path,
 )
 from telesmooth.diagrams.scenario import Scenario, make_haptic_recording
-from telesmooth.diagrams.simulation import plant_summary, sample_at, tool_positions
+from telesmooth.diagrams.simulation import (
+    plant_summary,
+    response_delay_s,
+    sample_at,
+    tool_positions,
+)
 from telesmooth.diagrams.teleoperation import scenario_smoother_config
 from telesmooth.smoothing.methods import SmoothingSettings, smooth_recording
 from telesmooth.smoothing.offline import OFFLINE_SOLVERS
@@ -111,6 +119,9 @@ _MAX_LATENCY_S = 5.0
 
 SETTLED_TOLERANCE_M = 1e-4
 """The tool counts as settled once it stays within this distance of its final position, m."""
+
+SETTLED_HOLD_S = 0.5
+"""…and has stayed within it for at least this long by the end of the run, s."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -267,7 +278,8 @@ class ComparisonSetup:
         q_start: The robot's start pose, rad, (J,).
         num_operator_samples: Samples that carry the recording (the rest hold its last pose).
         duration_s: Simulated time of every run (long enough for the fixed-lag delay), s.
-        ramp_s: The onboard interpolator's ramp (0 for zero-order hold), s.
+        ramp_s: How long after its send time each command's response is read
+            (:func:`~telesmooth.diagrams.simulation.response_delay_s`), s.
         max_acceleration, max_jerk: a_max, j_max per joint, (J,).
         operator_tool_m: FK(z_i), m, (N, 3).
         collision_model: The pre-simulator's collision model (violations are reported).
@@ -348,8 +360,7 @@ def prepare_comparison(scenario: Scenario,
     t_s, z, q_start = samples.t_s, samples.q, samples.q_start
     num_operator_samples = samples.num_operator_samples
     lag = scenario_smoother_config(scenario).lag
-    ramp = (scenario.onboard.interpolator.ramp_duration_s
-            if scenario.onboard.interpolator.interpolation == "linear" else 0.0)
+    ramp = response_delay_s(scenario)
     # Every run: the last packet that carries an operator sample (after the fixed-lag delay),
     # its ramp, and the settling.
     duration = (z.shape[0] - 1 + lag) * period + ramp + max(period, scenario.settle_s)
@@ -479,9 +490,10 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
     metrics["residual_motion_m"] = float(distance_to_final[after].max()) \
         if after.any() else math.nan
     outside = np.flatnonzero(distance_to_final > SETTLED_TOLERANCE_M)
-    # Still outside at the end of the run: not settled (NaN; the time is unknown, not the
-    # run's length).
-    metrics["settled"] = bool(outside.size == 0 or outside[-1] < tracker_t.size - 1)
+    # Not inside for the last SETTLED_HOLD_S of the run: not settled (NaN; the time is
+    # unknown, not the run's length).
+    metrics["settled"] = bool(outside.size == 0 or
+                              tracker_t[outside[-1]] <= tracker_t[-1] - SETTLED_HOLD_S)
     metrics["settling_time_s"] = (
         0.0 if outside.size == 0 else
         max(0.0, float(tracker_t[outside[-1]]) - (num_operator_samples - 1) * period)

@@ -10,11 +10,12 @@ operator speed):
 
 plus one core-only task per shape for claim C8 (Online-CKS over the shape's demonstrations in
 order, each operation starting from the σ the previous one ended with, against each starting
-from σ_0). Each cell is summarised and judged on its own (:func:`summarize_cells`).
+from σ_0). Each cell is summarised and judged on its own
+(:func:`telesmooth.diagrams.claims.summarize_cells`).
 
 Operator speed is a multiple of the demonstrator's own hand speed: the LASA clock is stretched by
-the base scenario's ``lasa_mapping.time_scale`` divided by the speed (default time scale 10, so
-speed 2.5 is time_scale 4). At hand speed the raw commands break the acceleration limit on a few
+the default ``lasa_mapping.time_scale`` (10, the hand's own speed) divided by the speed (speed 2.5
+is time_scale 4), whatever time scale the base scenario has. At hand speed the raw commands break the acceleration limit on a few
 per cent of the samples only, so the limits hardly bind; faster, they do.
 
 Every demonstration is mapped into the air-bearing arm's workspace at that speed
@@ -31,10 +32,8 @@ cluster of worker processes by default (bound to 127.0.0.1, no dashboard: only t
 health/metrics HTTP endpoint, on 127.0.0.1), an existing cluster
 given its scheduler address, or in this process (``workers=0``).
 
-Aggregation (:func:`summarize`): P of a run is taken against the original run of the same
-demonstration; every figure is reported as the mean over demonstrations and the worst case
-(largest, or smallest for P). :func:`check_claims` turns the summary into a verdict per claim
-C1–C8 of SPEC §7, each with the figures it rests on and the rule used.
+Each task's record is JSON-ready; :mod:`telesmooth.diagrams.claims` aggregates the records
+and judges the claims, without running anything.
 """
 
 from __future__ import annotations
@@ -48,10 +47,9 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from telesmooth.arms.modes import plant_modes
-from telesmooth.datasets.lasa import LASA_DEMOS_PER_SHAPE, LASA_SHAPES
+from telesmooth.datasets.lasa import LASA_DEMOS_PER_SHAPE, LASA_SHAPES, WorkspaceMapping
 from telesmooth.diagrams.comparison import (
     COMPARE_METHODS,
-    LEAST_DEFORMATION,
     OperatorSamples,
     method_settings,
     operator_samples,
@@ -66,18 +64,14 @@ from telesmooth.smoothing.offline import OFFLINE_SOLVERS, with_rest_history
 from telesmooth.smoothing.reduced_q import DEFAULT_SIGMA_MIN_RATIO
 
 __all__ = [
-    "CLAIMS",
     "KF_FORMS",
     "ExperimentConfig",
     "ExperimentTask",
     "cell_name",
-    "check_claims",
     "experiment_scenario",
     "make_tasks",
     "run_experiment",
     "run_task",
-    "summarize",
-    "summarize_cells",
 ]
 
 EXPERIMENT_METHODS = COMPARE_METHODS
@@ -86,29 +80,6 @@ EXPERIMENT_METHODS = COMPARE_METHODS
 KF_FORMS = ("kf", "kf-predictor")
 """The paper's "KF" comparator read as the a-posteriori filter x̂_{k|k} or its one-step
 predictor x̂_{k|k−1}; :attr:`ExperimentConfig.kf_form` declares which one every claim uses."""
-
-UNCONSTRAINED = ("offline-ks", "bmfls")
-"""The paper's unconstrained smoothers besides the KF (whose declared form is added)."""
-CONSTRAINED = ("offline-cks", "online-cks")
-"""The paper's constrained smoothers: Offline-CKS (state box) and Online-CKS."""
-
-WITHIN_THE_LIMITS = ("offline-cks-trajectory", "online-hard")
-"""Offline and online methods that both keep the FD limits (C6 at matched limit satisfaction)."""
-
-
-
-CLAIMS = {
-    "C1": "Offline-CKS and Online-CKS keep acceleration and jerk within the limits "
-          "approximately; the unconstrained methods do not guarantee it.",
-    "C2": "Joint position and velocity deformation is small for every method except the KF.",
-    "C3": "The end-effector track deformation is small except for the KF.",
-    "C4": "Every smoothing method improves dynamic tracking (P > 0), and Offline-CKS most.",
-    "C5": "The constrained methods get larger P than the unconstrained ones.",
-    "C6": "Offline-CKS deforms less than Online-CKS.",
-    "C7": "The KF performs worst overall.",
-    "C8": "Under reduced-Q σ decreases monotonically, and later operations are smoother.",
-}
-
 
 @dataclasses.dataclass(frozen=True)
 class ExperimentConfig:
@@ -130,8 +101,8 @@ class ExperimentConfig:
         c8_shapes: Shapes of the C8 study (all seven demonstrations of each, in order).
         offline_solver: Solver of the Offline-CKS methods, "drake" (the MathematicalProgram)
             or "banded-ip" (the banded interior point).
-        speeds: Operator speeds, multiples of the demonstrator's hand speed (> 0): the base
-            scenario's ``lasa_mapping.time_scale`` is divided by each.
+        speeds: Operator speeds, multiples of the demonstrator's hand speed (> 0): the
+            demonstration's time scale is 10 (the hand's speed) divided by each.
         plants: Drive presets of the plant (:data:`~telesmooth.arms.description.PLANT_PRESETS`;
             the base scenario's other drive fields are kept).
         kf_form: The KF form every claim uses (:data:`KF_FORMS`); the other is reported
@@ -239,10 +210,11 @@ def _seed(shape: str, demo: int) -> int:
 
 def experiment_scenario(base: Scenario, config: ExperimentConfig, shape: str, demo: int,
                         seed: int = 0, *, plant: str = "lab", speed: float = 1.0) -> Scenario:
-    """The base scenario replaying one LASA demonstration at ``speed`` × the demonstrator's,
-    on the ``plant`` drive preset, with the experiment's plant step."""
+    """The base scenario replaying one LASA demonstration at ``speed`` × the demonstrator's
+    hand speed (whatever time scale the base has: the default time scale, 10, is the hand's
+    speed), on the ``plant`` drive preset, with the experiment's plant step."""
     mapping = dataclasses.replace(base.haptic.lasa_mapping,
-                                  time_scale=base.haptic.lasa_mapping.time_scale / speed)
+                                  time_scale=WorkspaceMapping().time_scale / speed)
     haptic = dataclasses.replace(base.haptic, source="lasa", lasa_shape=shape, lasa_demo=demo,
                                  lasa_mapping=mapping)
     onboard = dataclasses.replace(
@@ -484,383 +456,3 @@ def run_experiment(base: Scenario, config: ExperimentConfig, *, workers: int = 2
     return [records[t.index] for t in tasks]
 
 
-# --- aggregation ------------------------------------------------------------------------------
-
-_LOWER_IS_WORSE = ("improvement_ratio_percent",)
-
-
-def _with_p(records: list[dict]) -> list[dict]:
-    """Adds P (and the added latency) of each run against the original of its demonstration
-    (NaN, left out of the figures, when that original is not among the records: a shard)."""
-    reference = {(r["shape"], r["demo"]): r["metrics"] for r in records
-                 if r["kind"] == "run" and r["method"] == "original"
-                 and r["study"] in ("main", "reference")}
-    missing = {"e_sum_m": math.nan, "latency_s": math.nan}
-    out = []
-    for record in records:
-        if record["kind"] == "run":
-            ref = reference.get((record["shape"], record["demo"]), missing)
-            m = dict(record["metrics"])
-            m["improvement_ratio_percent"] = (
-                100.0 * (ref["e_sum_m"] - m["e_sum_m"]) / ref["e_sum_m"])
-            m["added_latency_s"] = m["latency_s"] - ref["latency_s"]
-            record = {**record, "metrics": m}
-        out.append(record)
-    return out
-
-
-def summarize_cells(records: list[dict]) -> dict:
-    """:func:`summarize` per (plant, speed) cell: {cell name: summary with "plant" and
-    "speed"}, in the order the cells first appear."""
-    cells: dict[tuple, list] = {}
-    for record in records:
-        cells.setdefault((record.get("plant", "lab"), record.get("speed", 1.0)), []).append(
-            record)
-    return {cell_name(plant, speed): {"plant": plant, "speed": speed, **summarize(rows)}
-            for (plant, speed), rows in cells.items()}
-
-
-def summarize(records: list[dict]) -> dict:
-    """Mean, median, 90th percentile and worst case of every figure per run label, over the
-    demonstrations of one cell.
-
-    Returns:
-        {"main": {label: {figure: {"mean", "median", "p90", "worst", "n",
-        "fraction_positive"}}}, "sensitivity": {study: [{value, figure: ...}]}, "c8": {...},
-        "paired": {"<method> / ruckig": paired_ratio(...)} for the methods of
-        :data:`PAIRED_AGAINST_RUCKIG` (when both ran), "least_deformation": {label:
-        paired_ratio(label, offline-hard)} for every label (when offline-hard ran),
-        "failed": [{"key", "error"}] of the runs whose method failed (left out of every
-        figure), "records": the other records, with P}.
-    """
-    failed = [{"key": r["key"] if "key" in r else f"{r['shape']}/{r['demo']} {r['label']}",
-               "error": r["error"]} for r in records if "error" in r]
-    records = _with_p([r for r in records if "error" not in r])
-    groups: dict[str, list[dict]] = {}
-    for record in records:
-        if record["kind"] == "run" and record["study"] == "main":
-            groups.setdefault(record["label"], []).append(record["metrics"])
-    main = {label: _aggregate(rows) for label, rows in groups.items()}
-    sensitivity: dict[str, list] = {}
-    by_value: dict[tuple, list] = {}
-    for record in records:
-        if record["kind"] == "run" and record["study"] not in ("main", "reference"):
-            by_value.setdefault((record["study"], record["value"]), []).append(record["metrics"])
-    # The default point of every axis: Online-CKS with the scenario's settings on the study's
-    # shapes (demonstration 0).
-    study_shapes = {r["shape"] for r in records
-                    if r["kind"] == "run" and r["study"] not in ("main", "reference")}
-    defaults = [r for r in records if r["kind"] == "run" and r["method"] == "online-cks"
-                and r["study"] in ("main", "reference") and r["demo"] == 0
-                and r["shape"] in study_shapes]
-    for study in {key[0] for key in by_value}:
-        values = {r["online_cks"][study] for r in defaults}
-        if len(defaults) == len(study_shapes) and len(values) == 1 and None not in values:
-            by_value.setdefault((study, values.pop()), []).extend(r["metrics"] for r in defaults)
-    for (study, value), rows in sorted(by_value.items()):
-        sensitivity.setdefault(study, []).append({"value": value, **_aggregate(rows)})
-    c8 = _c8_summary([r for r in records if r["kind"] == "c8"])
-    paired = {f"{label} / ruckig": paired_ratio(records, label, "ruckig")
-              for label in PAIRED_AGAINST_RUCKIG if label in main and "ruckig" in main}
-    least = ({label: paired_ratio(records, label, LEAST_DEFORMATION) for label in main}
-             if LEAST_DEFORMATION in main else {})
-    modes = [r["plant_modes"] for r in records if "plant_modes" in r
-             and r["plant_modes"]["natural_frequency_hz"]]
-    plant = None
-    if modes:
-        lowest = np.array([m["natural_frequency_hz"][0] for m in modes])
-        zeta = np.array([m["damping_ratio"][0] for m in modes])
-        plant = {"n": len(modes), "lowest_hz_min": float(lowest.min()),
-                 "lowest_hz_max": float(lowest.max()), "lowest_zeta_min": float(zeta.min()),
-                 "lowest_zeta_max": float(zeta.max())}
-    return {"main": main, "sensitivity": sensitivity, "c8": c8, "paired": paired,
-            "least_deformation": least, "plant_modes": plant, "failed": failed,
-            "records": records}
-
-
-PAIRED_AGAINST_RUCKIG = ("online-hard", "offline-cks-trajectory")
-"""The methods within the limits whose E_def is set against Ruckig's demonstration by
-demonstration (issue 6: online-hard at most a quarter of Ruckig's stream tracking)."""
-
-PAIRED_SHARE = 0.25
-"""The share of Ruckig's E_def the paired comparison counts the demonstrations above."""
-
-
-def paired_ratio(records: list[dict], label: str, reference: str,
-                 key: str = "cartesian_deformation_mean_m") -> dict:
-    """``key`` of run ``label`` over that of ``reference`` on each demonstration both ran.
-
-    Returns:
-        {"n", "mean", "worst" (the largest ratio), "worst_demo" ("shape/demo"),
-        "above_share" (demonstrations whose ratio exceeds :data:`PAIRED_SHARE`), "share",
-        "reference_zero" (demonstrations both ran where the reference's figure is 0: no
-        ratio)}; n = 0 and None figures when no ratio exists.
-    """
-    values = {}
-    for record in records:
-        if record["kind"] == "run" and record["study"] == "main" and (
-                record["label"] in (label, reference)):
-            values.setdefault((record["shape"], record["demo"]), {})[record["label"]] = \
-                record["metrics"][key]
-    both = {cell: pair for cell, pair in sorted(values.items())
-            if label in pair and reference in pair}
-    # A demonstration the reference tracks exactly has no ratio; it is counted, not hidden.
-    ratios = {cell: pair[label] / pair[reference] for cell, pair in both.items()
-              if pair[reference] > 0}
-    skipped = len(both) - len(ratios)
-    if not ratios:
-        return {"n": 0, "mean": None, "worst": None, "worst_demo": None, "above_share": 0,
-                "share": PAIRED_SHARE, "reference_zero": skipped}
-    worst_cell = max(ratios, key=ratios.get)
-    array = np.array(list(ratios.values()))
-    return {"n": len(ratios), "mean": float(array.mean()), "worst": float(ratios[worst_cell]),
-            "worst_demo": f"{worst_cell[0]}/{worst_cell[1]}",
-            "above_share": int(np.sum(array > PAIRED_SHARE)), "share": PAIRED_SHARE,
-            "reference_zero": skipped}
-
-
-def _aggregate(rows: list[dict]) -> dict:
-    out = {}
-    for key in rows[0]:
-        values = np.array([row[key] for row in rows], dtype=float)
-        finite = values[np.isfinite(values)]
-        lower_is_worse = key in _LOWER_IS_WORSE
-        worst = (np.min if lower_is_worse else np.max)(finite) if finite.size else None
-        # The 90th percentile on the bad side (the 10th for P).
-        p90 = (float(np.percentile(finite, 10 if lower_is_worse else 90)) if finite.size
-               else None)
-        out[key] = {"mean": float(finite.mean()) if finite.size else None,
-                    "median": float(np.median(finite)) if finite.size else None,
-                    "p90": p90, "worst": None if worst is None else float(worst),
-                    "n": int(values.size), "fraction_positive": float(np.mean(values > 0))}
-    return out
-
-
-def _c8_summary(records: list[dict]) -> dict:
-    if not records:
-        return {}
-    pairs = monotone = smoother = 0
-    carried, fresh = [], []
-    for record in records:
-        demos = record["c8"]["demos"]
-        monotone += all(d["carried"]["sigma_monotone"] and d["fresh"]["sigma_monotone"]
-                        for d in demos)
-        for d in demos[1:]:
-            pairs += 1
-            smoother += d["carried"]["fd_jerk_max_over_limit"] <= \
-                d["fresh"]["fd_jerk_max_over_limit"]
-            carried.append(d["carried"]["fd_jerk_max_over_limit"])
-            fresh.append(d["fresh"]["fd_jerk_max_over_limit"])
-    return {"shapes": len(records), "shapes_sigma_monotone": int(monotone),
-            "later_operations": pairs, "later_operations_not_rougher": int(smoother),
-            "fd_jerk_max_over_limit_carried_mean": float(np.mean(carried)) if carried else None,
-            "fd_jerk_max_over_limit_fresh_mean": float(np.mean(fresh)) if fresh else None}
-
-
-# --- claims -----------------------------------------------------------------------------------
-
-APPROXIMATE_LIMIT = 1.5
-"""C1: "within the limits approximately" = at most 1.5 × the limit."""
-
-C1_QUANTILE = 90
-"""C1 is judged on this percentile of the per-demonstration worst FD ratio (a distribution over
-the demonstrations); the strict rule on the single worst demonstration is reported beside it."""
-
-
-def _worst_ratios(records: list[dict], label: str) -> np.ndarray:
-    """Per demonstration of the main table: max(worst FD acc/a_max, worst FD jerk/j_max)."""
-    return np.array([max(r["metrics"]["fd_acc_max_over_limit"],
-                         r["metrics"]["fd_jerk_max_over_limit"])
-                     for r in records if r["kind"] == "run" and r["study"] == "main"
-                     and r["label"] == label], dtype=float)
-
-
-def _share_over(records: list[dict], label: str) -> float:
-    """Mean over the demonstrations of the share of samples over a limit (acc or jerk)."""
-    return float(np.mean([max(r["metrics"].get("fd_acc_fraction_over", 0.0),
-                              r["metrics"].get("fd_jerk_fraction_over", 0.0))
-                          for r in records if r["kind"] == "run" and r["study"] == "main"
-                          and r["label"] == label]))
-
-
-def check_claims(summary: dict, kf_form: str = "kf") -> dict:
-    """A verdict per claim of SPEC §7 for one cell, with the figures and the rule applied.
-
-    Every claim uses the same KF form, ``kf_form`` (the other form's figures are given beside
-    it where it ran), and the paper's methods: KF, Offline-KS, Offline-CKS (the state box),
-    BMFLS and Online-CKS. Verdicts are ``holds``, ``does not hold``, ``partly`` or ``not
-    tested`` (a method the claim needs was not run). Figures are means over demonstrations
-    unless named otherwise.
-    """
-    if kf_form not in KF_FORMS:
-        raise ValueError(f"kf_form = {kf_form!r} must be one of {KF_FORMS}")
-    other_kf = next(form for form in KF_FORMS if form != kf_form)
-    main = summary["main"]
-    records = summary.get("records", [])
-
-    def mean(label, key):
-        return main[label][key]["mean"] if label in main else None
-
-    def have(*labels):
-        return all(label in main for label in labels)
-
-    claims = {}
-
-    def verdict(name, ok, rule, figures):
-        claims[name] = {"claim": CLAIMS[name], "rule": rule, "figures": figures,
-                        "verdict": ("not tested" if ok is None else
-                                    ok if isinstance(ok, str) else
-                                    ("holds" if ok else "does not hold"))}
-
-    def beside(key):
-        """The other KF form's mean of ``key``, or None."""
-        return mean(other_kf, key)
-
-    unconstrained = tuple(m for m in (kf_form,) + UNCONSTRAINED if m in main)
-    smoothers = [m for m in (kf_form, "offline-ks", "offline-cks", "bmfls", "online-cks")
-                 if m in main]
-
-    # C1: a distribution over the demonstrations, the strict worst case beside it.
-    if have(*CONSTRAINED):
-        figures = {}
-        for label in ("original",) + CONSTRAINED + unconstrained:
-            if label not in main:
-                continue
-            ratios = _worst_ratios(records, label)
-            if ratios.size == 0:      # hand-made summaries without records
-                ratios = np.array([max(main[label]["fd_acc_max_over_limit"]["worst"],
-                                       main[label]["fd_jerk_max_over_limit"]["worst"])])
-            figures[label] = {
-                "worst_ratio_median": float(np.median(ratios)),
-                f"worst_ratio_p{C1_QUANTILE}": float(np.percentile(ratios, C1_QUANTILE)),
-                "worst_ratio_max": float(ratios.max()),
-                "share_of_samples_over_a_limit": (_share_over(records, label)
-                                                  if records else None)}
-        quantile = f"worst_ratio_p{C1_QUANTILE}"
-        within = {label: figures[label][quantile] <= APPROXIMATE_LIMIT for label in CONSTRAINED}
-        broken = [label for label in unconstrained if figures[label][quantile] > 1.0]
-        ok = (True if all(within.values()) and broken else
-              "partly" if any(within.values()) else False)
-        strict_within = {label: figures[label]["worst_ratio_max"] <= APPROXIMATE_LIMIT
-                         for label in CONSTRAINED}
-        strict_broken = [label for label in unconstrained
-                         if figures[label]["worst_ratio_max"] > 1.0]
-        strict = ("holds" if all(strict_within.values()) and strict_broken else
-                  "partly" if any(strict_within.values()) else "does not hold")
-        figures["constrained_within_approximately"] = within
-        figures["unconstrained_over_the_limit"] = broken
-        figures["strict_rule"] = {"rule": f"the single worst demonstration of both "
-                                          f"constrained methods ≤ {APPROXIMATE_LIMIT}× the "
-                                          f"limit, and some unconstrained method > 1× in its "
-                                          f"worst demonstration",
-                                  "verdict": strict}
-        verdict("C1", ok, f"the {C1_QUANTILE}th percentile over the demonstrations of the worst "
-                f"FD acc/jerk ratio ≤ {APPROXIMATE_LIMIT} for both constrained methods, and "
-                f"> 1 for some unconstrained one (the strict rule on the single worst "
-                f"demonstration is given beside it: {strict})", figures)
-    else:
-        verdict("C1", None, "needs offline-cks and online-cks", {})
-
-    def largest(key):
-        values = {m: mean(m, key) for m in smoothers}
-        return values, max(values, key=values.get)
-
-    # C2, C3: the declared KF form deforms most.
-    for name, keys in (("C2", ("position_deformation_mean_rad",
-                               "velocity_deformation_mean_rad_per_s")),
-                       ("C3", ("cartesian_deformation_mean_m",))):
-        if kf_form not in main or len(smoothers) < 3:
-            verdict(name, None, f"needs {kf_form} and two other smoothers", {})
-            continue
-        figures, hits = {}, []
-        for key in keys:
-            values, top = largest(key)
-            figures[key] = {"means": values, "largest": top,
-                            f"{other_kf} (beside)": beside(key)}
-            hits.append(top == kf_form)
-        ok = True if all(hits) else ("partly" if any(hits) else False)
-        verdict(name, ok, f"the KF ({kf_form}) has the largest mean deformation of the paper's "
-                "smoothing methods" + ("; partly: for some of the figures only"
-                                       if len(keys) > 1 else ""), figures)
-
-    # C4
-    if len(smoothers) >= 2 and "offline-cks" in main:
-        key = "improvement_ratio_percent"
-        p = {m: mean(m, key) for m in smoothers}
-        positive = {m: main[m][key]["fraction_positive"] for m in smoothers}
-        all_positive = all(v > 0 for v in p.values())
-        best = max(p, key=p.get)
-        ok = (True if all_positive and best == "offline-cks" else
-              "partly" if all_positive or best == "offline-cks" else False)
-        verdict("C4", ok, "mean P > 0 for every smoothing method of the paper, and Offline-CKS "
-                "(state box) has the largest mean P",
-                {"P_mean": p, "fraction_of_demos_with_P_positive": positive, "largest": best,
-                 "beside": {m: mean(m, key) for m in (other_kf, "offline-cks-trajectory",
-                                                      "offline-hard", "online-hard", "ruckig")
-                            if m in main}})
-    else:
-        verdict("C4", None, "needs offline-cks and another smoothing method", {})
-
-    # C5
-    if have(*CONSTRAINED) and unconstrained:
-        key = "improvement_ratio_percent"
-        p_con = {m: mean(m, key) for m in CONSTRAINED}
-        p_unc = {m: mean(m, key) for m in unconstrained}
-        ok = min(p_con.values()) > max(p_unc.values())
-        if not ok and max(p_con.values()) > max(p_unc.values()):
-            ok = "partly"
-        verdict("C5", ok, "every constrained method's mean P exceeds every unconstrained one's",
-                {"constrained": p_con, "unconstrained": p_unc,
-                 f"{other_kf} (beside)": beside(key)})
-    else:
-        verdict("C5", None, "needs the constrained and an unconstrained method", {})
-
-    # C6: offline against online at matched limit satisfaction, each pair on its own.
-    pairs = {"as the paper defines them (offline-cks against online-cks)": CONSTRAINED,
-             "both within the limits (offline-cks-trajectory against online-hard)":
-                 WITHIN_THE_LIMITS}
-    figures, results = {}, []
-    for title, (offline, online) in pairs.items():
-        if not have(offline, online):
-            continue
-        key = "cartesian_deformation_mean_m"
-        per_demo = paired_ratio(records, offline, online, key) if records else None
-        holds = mean(offline, key) < mean(online, key)
-        results.append(holds)
-        figures[title] = {"offline_E_def_mean_m": mean(offline, key),
-                          "online_E_def_mean_m": mean(online, key),
-                          "offline_over_online_per_demonstration": per_demo,
-                          "verdict": "holds" if holds else "does not hold"}
-    ok = (None if not results else True if all(results) else
-          "partly" if any(results) else False)
-    verdict("C6", ok, "the offline method's mean E_def < the online one's, for each pair that "
-            "keeps the limits alike (partly: for one pair only)", figures)
-
-    # C7: mean rank over FD acc, FD jerk, E_def and e (1 = best).
-    keys = ("fd_acc_max_over_limit", "fd_jerk_max_over_limit", "cartesian_deformation_mean_m",
-            "e_mean_m")
-    if kf_form in main and len(smoothers) >= 3:
-        ranks = {m: 0.0 for m in smoothers}
-        for key in keys:
-            order = sorted(smoothers, key=lambda m: mean(m, key))
-            for rank, m in enumerate(order, start=1):
-                ranks[m] += rank / len(keys)
-        worst_method = max(ranks, key=ranks.get)
-        verdict("C7", worst_method == kf_form, f"the KF ({kf_form}) has the worst mean rank over "
-                "FD acc, FD jerk, E_def and e among the paper's smoothing methods",
-                {"mean_rank": ranks, "worst": worst_method})
-    else:
-        verdict("C7", None, f"needs {kf_form} and two other smoothers", {})
-
-    # C8
-    c8 = summary.get("c8") or {}
-    if c8:
-        monotone = c8["shapes_sigma_monotone"] == c8["shapes"]
-        smoother = c8["later_operations_not_rougher"] / max(1, c8["later_operations"])
-        ok = True if monotone and smoother == 1.0 else ("partly" if monotone else False)
-        verdict("C8", ok, "σ never increases in any shape, and every later operation (σ carried "
-                "over) has a worst FD jerk no larger than the same operation from σ_0",
-                {**c8, "fraction_not_rougher": smoother})
-    else:
-        verdict("C8", None, "the C8 study was not run", {})
-    return claims

@@ -25,7 +25,7 @@ from telesmooth.smoothing.validation import as_per_joint
 from telesmooth.systems.laser_tracker import tracker_record
 
 __all__ = ["ResponseErrors", "SimulationRecord", "plant_summary", "plant_text",
-           "response_errors", "run_duration_s", "run_metrics", "sample_at", "simulate",
+           "response_delay_s", "response_errors", "run_duration_s", "run_metrics", "sample_at", "simulate",
            "tool_positions"]
 
 
@@ -127,7 +127,7 @@ def plant_text(summary: dict) -> str:
     step = summary["time_step_s"]
     stepping = f"{1000 * step:g} ms steps" if step > 0 else "continuous"
     return (f"Plant: `{summary['arm']}`, drive preset `{summary['drive_preset']}` "
-            f"({stepping}); vibration modes linearised about the start pose: "
+            f"({stepping}); lightly damped vibration modes linearised about the start pose: "
             f"{summary['modes_text']}.")
 
 
@@ -238,6 +238,21 @@ def sample_at(times, values, at):
     return values[np.clip(index, 0, len(times) - 1)]
 
 
+def response_delay_s(scenario: Scenario) -> float:
+    """How long after a command is issued the robot's response to it is read, s.
+
+    With the linear interpolation (default), when the set-point has reached the command: its
+    ramp's end, ``ramp_duration_s`` after the ramp started (the ramp starts at the command's
+    send time, see the interpolator's ``command_time``). With a zero-order hold the set-point
+    jumps at once, and the response is read at the end of the command's hold, one uplink
+    period later, just before the next command: reading it at the jump would measure the
+    step itself.
+    """
+    interpolator = scenario.onboard.interpolator
+    return (interpolator.ramp_duration_s if interpolator.interpolation == "linear"
+            else scenario.uplink.period_s)
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class ResponseErrors:
     """The robot's response to each packet k, read when the set-point has reached it.
@@ -247,7 +262,7 @@ class ResponseErrors:
         response_m: e(k) = ‖FK(q_sent,k) − x_tracker(t_k + ramp)‖, m, (M,).
         chain_t_s: The same instants for the packets that carry an operator sample, s, (C,).
         chain_m: ‖FK(q_operator(t_k − delay)) − x_tracker(t_k + ramp)‖, m, (C,).
-        ramp_s: The interpolator's ramp (0 for zero-order hold), s.
+        ramp_s: How long after its send time a command is read (:func:`response_delay_s`), s.
     """
 
     response_t_s: np.ndarray
@@ -261,8 +276,7 @@ def response_errors(record: SimulationRecord) -> ResponseErrors:
     """e of every packet whose response instant lies in the tracker's record (the tracker
     sample taken at that instant: each record row is at its own sample time)."""
     scenario = record.scenario
-    ramp = scenario.onboard.interpolator.ramp_duration_s \
-        if scenario.onboard.interpolator.interpolation == "linear" else 0.0
+    ramp = response_delay_s(scenario)
     sample_times = record.packet_t_s - scenario.fifo.delay_s
     response_times = record.packet_t_s + ramp
     inside = response_times <= record.tracker_t_s[-1]

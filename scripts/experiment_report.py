@@ -29,18 +29,15 @@ from pathlib import Path
 
 import numpy as np
 
-from telesmooth.diagrams.comparison import LEAST_DEFORMATION
-from telesmooth.diagrams.experiment import (
+from telesmooth.diagrams.claims import (
     APPROXIMATE_LIMIT,
     C1_QUANTILE,
     PAIRED_SHARE,
-    ExperimentConfig,
-    cell_name,
     check_claims,
-    make_tasks,
-    run_experiment,
     summarize_cells,
 )
+from telesmooth.diagrams.comparison import LEAST_DEFORMATION
+from telesmooth.diagrams.experiment import ExperimentConfig, make_tasks, run_experiment
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.scripts.formatting import limit_ratio
 
@@ -280,7 +277,8 @@ def _cell_section(cell: str, summary: dict, claims: dict, figures, kf_form: str)
                   f"{100 * original['fd_jerk_fraction_over']['mean']:.1f} % (jerk)).", ""]
     plant = summary.get("plant_modes")
     if plant:
-        lines += [f"Vibration modes of the plant about the start poses: lowest mode "
+        lines += [f"Vibration modes of the plant about the start poses: lowest lightly damped "
+                  f"mode "
                   f"{plant['lowest_hz_min']:.2f}-{plant['lowest_hz_max']:.2f} Hz, damping "
                   f"ratio {plant['lowest_zeta_min']:.3f}-{plant['lowest_zeta_max']:.3f} "
                   f"(over the {plant['n']} demonstrations).", ""]
@@ -376,9 +374,17 @@ GRID_FILE = "grid.json"
 RECORDS_FILE = "records.jsonl"
 
 
+READS_RECORDS_ONLY = ("scripts", "tests", "docs", "diagrams/claims.py")
+"""Parts of the package that only read records (the reports, the claims): changing them does
+not change a record, so a finished grid can be reported again with them."""
+
+REPORT_FIELDS = ("kf_form",)
+"""Fields of :class:`ExperimentConfig` that only change how the records are judged."""
+
+
 def code_fingerprint() -> str:
-    """sha256 of the package's Python sources and data files (tests excluded): records of
-    another version of the code are not mixed in."""
+    """sha256 of the package's sources and data files that compute records (everything but
+    :data:`READS_RECORDS_ONLY`): records of another version of that code are not mixed in."""
     import telesmooth
 
     root = Path(telesmooth.__file__).resolve().parent
@@ -386,16 +392,21 @@ def code_fingerprint() -> str:
     for path in sorted(root.rglob("*")):
         relative = path.relative_to(root)
         if (path.is_file() and path.suffix in (".py", ".yaml", ".sdf", ".lcm")
-                and relative.parts[0] not in ("tests", ".venv", ".git")
+                and relative.parts[0] not in (".venv", ".git")
+                and not any(relative.as_posix() == part or relative.parts[0] == part
+                            for part in READS_RECORDS_ONLY)
                 and not any(part.startswith(".") for part in relative.parts)):
-            digest.update(str(relative).encode() + b"\0" + path.read_bytes() + b"\0")
+            digest.update(relative.as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
     return digest.hexdigest()
 
 
 def grid_fingerprint(base, config: ExperimentConfig) -> dict:
-    """What makes two runs parts of the same experiment: the grid (without how it is run),
-    the base scenario and the code. {"fingerprint": sha256 hex, "config", "base", "code"}."""
+    """What makes two runs parts of the same experiment: the grid (without how it is run or
+    judged: :data:`REPORT_FIELDS`), the base scenario and the code that computes records.
+    {"fingerprint": sha256 hex, "config", "base", "code"}."""
     grid = json.loads(json.dumps(dataclasses.asdict(config), default=repr))   # as stored
+    for field in REPORT_FIELDS:
+        grid.pop(field, None)
     code = code_fingerprint()
     text = json.dumps({"config": grid, "base": repr(base), "code": code}, sort_keys=True)
     return {"fingerprint": hashlib.sha256(text.encode()).hexdigest(), "config": grid,
@@ -476,6 +487,30 @@ def parse_shard(text: str | None) -> tuple[int, int] | None:
     return part, parts
 
 
+class _FolderLock:
+    """One run at a time per output folder (an advisory lock on ``.lock``): two runs on one
+    folder would compute the same tasks twice and could cut each other's lines."""
+
+    def __init__(self, out: Path):
+        self.path = out / ".lock"
+
+    def __enter__(self):
+        import fcntl
+
+        self.handle = self.path.open("a")
+        try:
+            fcntl.flock(self.handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self.handle.close()
+            raise ValueError(f"--out {str(self.path.parent)[:80]!r} is being used by another "
+                             "experiment run; wait for it or use another folder") from None
+        return self
+
+    def __exit__(self, *exc):
+        self.handle.close()          # closing releases the lock
+        return False
+
+
 def write_experiment_report(out_dir, base, config: ExperimentConfig, *, workers: int = 2,
                             scheduler: str | None = None, progress=_log,
                             shard: tuple[int, int] | None = None) -> Path:
@@ -489,6 +524,12 @@ def write_experiment_report(out_dir, base, config: ExperimentConfig, *, workers:
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    with _FolderLock(out):
+        return _run_and_report(out, base, config, workers, scheduler, progress, shard)
+
+
+def _run_and_report(out: Path, base, config: ExperimentConfig, workers: int, scheduler,
+                    progress, shard) -> Path:
     grid = grid_fingerprint(base, config)
     _check_grid(out, grid)
     tasks = make_tasks(config)
@@ -526,16 +567,17 @@ def merge_experiment_reports(out_dir, sources, base, config: ExperimentConfig,
         _check_grid(source, grid)
         records.update(read_records(source))
     out.mkdir(parents=True, exist_ok=True)
-    _check_grid(out, grid)
-    log = _RecordLog(out)
-    held = read_records(out)
-    for key, record in records.items():
-        if key not in held:
-            log(record)
-    tasks = make_tasks(config)
-    meta = {"computed": 0, "kept": f"merged from {len(sources)} folders", "workers": "-",
-            "wall_s": 0.0}
-    return _write_report(out, base, config, read_records(out), tasks, meta, progress)
+    with _FolderLock(out):
+        _check_grid(out, grid)
+        log = _RecordLog(out)
+        held = read_records(out)
+        for key, record in records.items():
+            if key not in held:
+                log(record)
+        tasks = make_tasks(config)
+        meta = {"computed": 0, "kept": f"merged from {len(sources)} folders", "workers": "-",
+                "wall_s": 0.0}
+        return _write_report(out, base, config, read_records(out), tasks, meta, progress)
 
 
 def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, meta,

@@ -23,8 +23,10 @@ method             estimate of sample k                            sent after
 
 For the fixed-lag methods the operator is taken to hold the last pose after the recording ends
 (L extra copies of the last sample), so every sample gets an estimate.
-All methods share Φ, Q(σ_0), r and the rest start at z_0 (the offline smoothers' start prior is
-``SmoothingSettings.start_prior``).
+All methods share Φ, Q(σ_0), r and start at rest at z_0: the fixed-lag methods exactly, the
+offline smoothers by their start prior (``SmoothingSettings.start_prior``: "rest" by default,
+or the paper's "loose" one); the Kalman filters keep the paper's prior diag(r, 1e-4, 1e-3,
+1e-2) (a filter's first estimates follow the first samples whichever prior it has).
 """
 
 from __future__ import annotations
@@ -167,7 +169,8 @@ def smooth_recording(
         return SmoothedRecording(method, states[:, :, 0].copy(), states, 0.0)
     if method == "offline-ks":
         states = rts_smoother(z, model, start_prior(settings.start_prior, z[0], model)).mean
-        return SmoothedRecording(method, states[:, :, 0].copy(), states, 0.0)
+        return SmoothedRecording(method, states[:, :, 0].copy(), states, 0.0,
+                                 details={"start_prior": settings.start_prior})
     if method == "offline-cks":
         result = solve_offline_cks(
             z, model,

@@ -207,7 +207,7 @@ class CommandInterpolator(LeafSystem):
     so a new command issued at t₀ is reached at t₀ + T; a command arriving mid-ramp
     starts a new ramp from the current q_d (the position is continuous, the velocity
     jumps). With a steady 4 Hz stream and T = 0.25 s, q_d is the piecewise-linear
-    interpolation of the commands delayed by one uplink period (exactly, with
+    interpolation of the commands delayed by one uplink period less the lead (exactly, with
     ``command_time``; else plus at most one poll period: a command that changes at t is
     seen at the first poll after t, or at t itself if the upstream value has already
     changed when the poll runs).

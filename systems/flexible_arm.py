@@ -59,8 +59,10 @@ ARM_DESCRIPTIONS: dict[str, ArmDescription] = {
 }
 """The arms that :attr:`FlexibleArmConfig.arm` can name."""
 
-DISCRETE_CONTACT_APPROXIMATIONS = ("lagged", "sap", "similar", "tamsi")
-"""The values of ``MultibodyPlantConfig.discrete_contact_approximation`` that we accept."""
+DISCRETE_CONTACT_APPROXIMATIONS = ("lagged", "sap", "similar")
+"""The values of ``MultibodyPlantConfig.discrete_contact_approximation`` that we accept: the
+SAP-based ones, whose implicit PD runs the motor servos. ``"tamsi"`` (deprecated in Drake) is
+refused: with it the plant's PD controllers do nothing (the motors stay put)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,7 +78,7 @@ class DriveConfig:
 
     Attributes:
         preset: ``"lab"`` (default: the laboratory arm) or ``"lightweight"`` (10× softer
-            springs, lowest mode about 1 Hz, damping ratio about 0.02).
+            springs, lowest lightly damped mode about 0.9-1.2 Hz, damping ratio about 0.02).
         stiffness_n_m_per_rad: Link-side spring stiffness k, N·m/rad (> 0).
         damping_n_m_s_per_rad: Link-side damping c, N·m·s/rad (> 0).
         rotor_inertia_kg_m2: Rotor inertia J_r before the gear, kg·m² (> 0); the motor

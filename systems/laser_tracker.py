@@ -73,7 +73,8 @@ def tracker_record(measurements) -> TrackerRecord:
         measurements: Rows [t_k, p_WT (3), q_link (n), q_motor (n)] as logged, (R, 4 + 2n),
             in logging order. A logger shows a held sample once per publish, and the sample
             taken at initialization and the periodic one at t = 0 share t_k = 0: every
-            sample time is kept once (its first row).
+            sample time is kept once (its last row: at t = 0 the periodic sample, taken
+            after anything set between initialization and the first step).
 
     Returns:
         The samples by their own time t_k (not the loggers' time stamps).
@@ -89,8 +90,8 @@ def tracker_record(measurements) -> TrackerRecord:
     t_s = rows[:, 0]
     if np.any(np.diff(t_s) < 0.0):
         raise ValueError("tracker sample times must not decrease")
-    first = np.r_[True, np.diff(t_s) > 0.0] if len(t_s) else np.zeros(0, dtype=bool)
-    rows = rows[first]
+    last = np.r_[np.diff(t_s) > 0.0, True] if len(t_s) else np.zeros(0, dtype=bool)
+    rows = rows[last]
     return TrackerRecord(t_s=rows[:, 0].copy(), tool_position_m=rows[:, 1:4].copy(),
                          q_link=rows[:, 4:4 + n].copy(), q_motor=rows[:, 4 + n:].copy())
 

@@ -199,8 +199,8 @@ def test_a_command_time_places_the_ramp_at_the_instant_the_command_was_issued(in
 @pytest.mark.parametrize("stamp_s", [np.nan, 0.5, 0.05])
 def test_a_command_time_outside_the_last_ramp_start_and_now_is_ignored(stamp_s):
     """A stamp that is not finite, in the future (0.5 s at the poll of 0.101 s), or before
-    the ramp in progress began (0.05 s, before a ramp started at 0.0605 s) cannot move the
-    ramp: it starts at the poll, as without the input."""
+    the ramp in progress began (0.05 s, before the ramp started at the 0.061 s poll) cannot
+    move the ramp: it starts at the poll, as without the input."""
     harness = Harness(make_dut("linear"))
     a, b = np.array([0.6, 0.8]), np.array([-0.4, 1.2])
     harness.hold_from(0.0605, b)

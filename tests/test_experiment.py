@@ -10,20 +10,18 @@ import math
 import numpy as np
 import pytest
 
+from telesmooth.diagrams.claims import check_claims, summarize, summarize_cells
 from telesmooth.diagrams.comparison import response_latency
 from telesmooth.diagrams.experiment import (
     ExperimentConfig,
-    check_claims,
     experiment_scenario,
     make_tasks,
     run_experiment,
-    summarize,
-    summarize_cells,
 )
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.scripts.cli import main
 
-# Short runs: the demonstration at 2.5× the pen's speed instead of 1×, a short settle.
+# Short runs: short holds; the experiment's speed 2.5 (2.5× the pen's speed) is this time scale.
 FAST = "{haptic: {lasa_mapping: {time_scale: 4.0, hold_start_s: 0.5, hold_end_s: 1.0}}}"
 
 
@@ -34,7 +32,7 @@ def base():
 
 def small_config(**overrides):
     fields = dict(shapes=("Angle",), methods=("original", "bmfls"), sensitivity_shapes=(),
-                  c8_shapes=(), settle_s=2.0)
+                  c8_shapes=(), settle_s=2.0, speeds=(2.5,))
     fields.update(overrides)
     return ExperimentConfig(**fields)
 
@@ -300,8 +298,10 @@ def test_the_grid_spans_plants_and_speeds_and_each_task_has_a_stable_key(base):
     assert len({t.key for t in tasks}) == len(tasks)
     assert [t.key for t in make_tasks(config)] == [t.key for t in tasks]
     scenario = experiment_scenario(base, config, "Angle", 0, plant="lightweight", speed=2.5)
-    assert scenario.haptic.lasa_mapping.time_scale == pytest.approx(
-        base.haptic.lasa_mapping.time_scale / 2.5)
+    assert scenario.haptic.lasa_mapping.time_scale == pytest.approx(10.0 / 2.5)
+    # The speed is the hand's, whatever time scale the base scenario has (FAST has 4).
+    assert experiment_scenario(base, config, "Angle", 0, speed=1.0) \
+        .haptic.lasa_mapping.time_scale == pytest.approx(10.0)
     assert scenario.onboard.drive.preset == "lightweight"
     with pytest.raises(ValueError, match="speeds"):
         small_config(speeds=(1.0, 1.0))
@@ -339,16 +339,16 @@ def test_cli_writes_the_report_and_names_bad_shapes(tmp_path, capsys):
     status = main(["experiment", "--scenario-text", FAST, "--out", str(out), "--shapes",
                    "Angle", "--methods", "original,kf,offline-cks,ruckig",
                    "--sensitivity-shapes", "Angle", "--c8-shapes", "none", "--workers", "0",
-                   "--settle", "2", "--solver", "banded-ip"])
+                   "--settle", "2", "--solver", "banded-ip", "--speeds", "2.5"])
     captured = capsys.readouterr()
     assert status == 0, captured.err
     assert "report:" in captured.out
     data = json.loads((out / "experiment.json").read_text())
-    cell = data["cells"]["lab, 1×"]
+    cell = data["cells"]["lab, 2.5×"]
     assert set(cell["main"]) == {"original", "kf", "offline-cks", "ruckig"}
     assert data["config"]["offline_solver"] == "banded-ip"
-    assert {"C1", "C8"} <= set(data["claims"]["lab, 1×"])
-    assert data["claims"]["lab, 1×"]["C8"]["verdict"] == "not tested"
+    assert {"C1", "C8"} <= set(data["claims"]["lab, 2.5×"])
+    assert data["claims"]["lab, 2.5×"]["C8"]["verdict"] == "not tested"
     # The plant's modes about the start pose of the demonstration.
     assert 2.0 < cell["plant_modes"]["lowest_hz_min"] < 3.5
     sensitivity = cell["sensitivity"]
@@ -481,7 +481,12 @@ def test_shards_merge_into_the_report_of_the_whole_grid(base, tmp_path, monkeypa
     assert "Incomplete" not in (tmp_path / "merged" / "report.md").read_text()
     with pytest.raises(ValueError, match="another experiment"):
         merge_experiment_reports(tmp_path / "m2", [tmp_path / "part1"], base,
-                                 dataclasses.replace(config, kf_form="kf-predictor"), **quiet)
+                                 dataclasses.replace(config, settle_s=3.0), **quiet)
+    # The KF form only changes the verdicts: the whole grid is judged again with the other.
+    merge_experiment_reports(tmp_path / "merged", [tmp_path / "part1", tmp_path / "part2"],
+                             base, dataclasses.replace(config, kf_form="kf-predictor"), **quiet)
+    claims, _ = claims_and_records(tmp_path / "merged")
+    assert "kf-predictor" in claims["lab, 1×"]["C2"]["rule"]
 
 
 def test_a_method_that_fails_on_one_demonstration_is_reported_not_fatal(base, monkeypatch,
@@ -500,8 +505,36 @@ def test_a_method_that_fails_on_one_demonstration_is_reported_not_fatal(base, mo
     report = write_experiment_report(tmp_path / "exp", base, small_config(), workers=0,
                                      progress=lambda line: None)
     data = json.loads((tmp_path / "exp" / "experiment.json").read_text())
-    cell = data["cells"]["lab, 1×"]
+    cell = data["cells"]["lab, 2.5×"]
     assert set(cell["main"]) == {"original"}
     assert [row["error"] for row in cell["failed"]] == [
         "RuntimeError: method 'bmfls' failed: forced"]
     assert "1 run(s) failed" in report.read_text()
+
+
+def test_without_the_originals_p_is_unknown_and_its_claims_not_tested():
+    """A shard may hold methods without the original runs of their demonstrations: P is
+    unknown there (no mean, no fraction), and C4/C5 are not tested rather than failing."""
+    records = [record("A", 0, method, 8.0, 0.0) for method in
+               ("kf", "offline-ks", "offline-cks", "bmfls", "online-cks")]
+    summary = summarize(records)
+    p = summary["main"]["kf"]["improvement_ratio_percent"]
+    assert p["mean"] is None and p["fraction_positive"] is None and p["n_finite"] == 0
+    claims = check_claims(summary)
+    assert claims["C4"]["verdict"] == "not tested" == claims["C5"]["verdict"]
+    assert claims["C3"]["verdict"] in ("holds", "does not hold", "partly")
+
+
+def test_two_runs_on_one_folder_are_refused(base, tmp_path, monkeypatch):
+    from telesmooth.scripts.experiment_report import _FolderLock, write_experiment_report
+
+    module, fake = _fake_run_task([])
+    monkeypatch.setattr(module, "run_task", fake)
+    out = tmp_path / "exp"
+    out.mkdir()
+    with _FolderLock(out):            # another run holds the folder
+        with pytest.raises(ValueError, match="is being used by another experiment run"):
+            write_experiment_report(out, base, _grid(), workers=0, progress=lambda line: None)
+    assert not (out / "records.jsonl").exists()
+    write_experiment_report(out, base, _grid(), workers=0, progress=lambda line: None)
+    assert (out / "records.jsonl").exists()       # released: the next run goes ahead

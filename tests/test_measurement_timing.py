@@ -35,7 +35,7 @@ def _tracker_noise(seed, noise_m, times_s):
 
 
 def test_tracker_record_keeps_each_sample_once_by_its_own_time():
-    rows = np.array([[0.0, 1, 2, 3, 4, 5, 6, 7],       # initialization at t = 0
+    rows = np.array([[0.0, 0, 0, 0, 0, 0, 0, 0],       # initialization at t = 0
                      [0.0, 1, 2, 3, 4, 5, 6, 7],       # the periodic sample at t = 0
                      [0.0, 1, 2, 3, 4, 5, 6, 7],       # logged again, still held
                      [0.01, 8, 9, 10, 11, 12, 13, 14]])
@@ -156,8 +156,37 @@ def test_e_of_a_constant_velocity_ramp_is_a_small_fraction_of_one_plant_step_of_
     steady = run.response_error_m[20:]          # from 5 s: the start transient has died
     assert np.ptp(steady) < 1e-3 * radius * omega * h     # a steady state indeed
     assert steady.max() < 0.5 * radius * omega * h
-    # The same tracker record read one period (10 ms) later than each response instant.
+    # The same tracker record read at the sample taken one period (10 ms) before each
+    # response instant, as the logger's stamp used to give it.
     late = np.array([run.tool_position_m[np.searchsorted(run.tracker_t_s, s + 1e-9) - 2]
                      for s in (np.arange(n) * period + setup.ramp_s)[20:]])
     skewed = np.linalg.norm(setup.fk(run.estimate[20:]) - late, axis=1)
     np.testing.assert_allclose(skewed - steady, radius * omega * 0.01, rtol=0.01)
+
+
+def test_with_a_zero_order_hold_the_response_is_read_at_the_end_of_each_hold():
+    """The set-point jumps to each command at once; read at the jump, e would be the step
+    itself (R·ω·Δt = 13.75 mm here). It is read one uplink period later, at the tracker
+    sample taken just as the next command arrives: recomputed from the tracker record at
+    t_k + Δt exactly, and well below the step (the robot had the period to move)."""
+    from telesmooth.diagrams.simulation import response_delay_s
+
+    scenario = load_scenario(scenario_text=(
+        "{onboard: {interpolator: {interpolation: zoh}, "
+        "drive: {damping_n_m_s_per_rad: [60, 20, 3]}}, settle_s: 0.5}"))
+    period = scenario.uplink.period_s
+    assert response_delay_s(scenario) == period
+    omega, radius = 0.05, sum(AIR_BEARING_ARM.link_lengths_m)
+    n = 40
+    t = period * np.arange(n)
+    z = np.zeros((n, 3))
+    z[:, 0] = omega * t
+    setup = prepare_comparison(scenario, OperatorSamples(t_s=t, q=z, q_start=z[0].copy(),
+                                                         num_operator_samples=n))
+    run = run_method(setup, "original")
+    rows = [int(np.argmin(np.abs(run.tracker_t_s - (k * period + period)))) for k in range(n)]
+    assert np.allclose(run.tracker_t_s[rows], t + period, rtol=0, atol=1e-9)
+    expected = np.linalg.norm(setup.fk(z) - run.tool_position_m[rows], axis=1)
+    np.testing.assert_allclose(run.response_error_m, expected, rtol=0, atol=1e-15)
+    step = radius * omega * period
+    assert run.response_error_m[20:].max() < 0.5 * step

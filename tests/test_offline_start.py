@@ -70,7 +70,7 @@ def test_an_offline_smoother_does_not_kick_the_robot_at_the_start(method, constr
         jerk = np.abs(finite_differences(received, DT, 3))[:6] / J_MAX
         acc = np.abs(finite_differences(received, DT, 2))[:6] / A_MAX
         junction[kind] = max(jerk.max(), acc.max())
-        assert result.details.get("start_prior", kind) == kind
+        assert result.details["start_prior"] == kind
     assert junction["loose"] > 20.0           # measured 26.8 (cks) and 26.1 (ks)
     assert junction["rest"] < junction["loose"] / 3
     if method == "offline-cks":
