@@ -100,20 +100,24 @@ def test_samples_within_the_limits_are_sent_unchanged():
     np.testing.assert_array_equal(result.positions, z)
 
 
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=12, deadline=None)
 @given(seed=st.integers(0, 10_000), shrink=st.floats(0.0, 0.99))
 def test_no_sequence_within_the_limits_is_closer_to_the_operator(seed, shrink):
-    """online-hard's commands keep the limits (it guarantees it), and so does any blend of the
-    optimum with the rest pose; neither may be closer to the samples than offline-hard. The
-    online-hard run is aligned as the robot receives it: held at rest before, and its last
-    command held after (so it also keeps the rest at the end)."""
+    """online-hard's commands keep the limits from the rest pose on (it guarantees it) but
+    need not come to rest at the end: no offline-hard without the rest at the end may be
+    farther from the samples. Any blend of the optimum with the rest pose keeps every limit
+    and the rest at the end (the limits are linear): no closer than offline-hard either."""
     z = operator_recording(num_samples=40, num_joints=2, seed=seed, noise=3e-3)
     result = solve_offline_hard(z, DT, max_acceleration=A_MAX, max_jerk=J_MAX)
-    assert result.is_success
+    free_end = solve_offline_hard(z, DT, max_acceleration=A_MAX, max_jerk=J_MAX,
+                                  rest_at_end=False)
+    assert result.is_success and free_end.is_success
     assert max(_received_ratios(result.positions, z[0], (np.inf, A_MAX, J_MAX))) <= 1 + 1e-9
     online = online_hard_run(z, DT, max_acceleration=A_MAX, max_jerk=J_MAX, q_start=z[0])
-    assert np.all(np.sum((online - z) ** 2, axis=0) >= result.squared_error - 1e-12)
-    blend = z[0] + shrink * (result.positions - z[0])    # within the limits: they are linear
+    assert np.all(np.sum((online - z) ** 2, axis=0) >= free_end.squared_error - 1e-12)
+    # Coming to rest can only cost.
+    assert np.all(result.squared_error >= free_end.squared_error - 1e-12)
+    blend = z[0] + shrink * (result.positions - z[0])
     assert np.all(np.sum((blend - z) ** 2, axis=0) >= result.squared_error - 1e-12)
 
 
