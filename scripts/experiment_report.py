@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from telesmooth.atomic_files import write_text
 from telesmooth.diagrams.experiment import (
     APPROXIMATE_LIMIT,
     PAIRED_SHARE,
@@ -298,11 +299,11 @@ def write_experiment_report(out_dir, base, config: ExperimentConfig, *, workers:
     data = {"config": dataclasses.asdict(config), "meta": meta,
             "summary": {k: v for k, v in summary.items() if k != "records"},
             "claims": claims, "records": summary["records"]}
-    (out / "experiment.json").write_text(json.dumps(data, indent=1, default=float) + "\n")
-    (out / "table.md").write_text(main_table_markdown(summary["main"]) + "\n")
+    write_text(out / "experiment.json", json.dumps(data, indent=1, default=float) + "\n")
+    write_text(out / "table.md", main_table_markdown(summary["main"]) + "\n")
     figures = _write_figures(out, summary)
     report = out / "report.md"
-    report.write_text(_report_text(config, summary, claims, figures, meta))
+    write_text(report, _report_text(config, summary, claims, figures, meta))
     for name, claim in claims.items():
         progress(f"{name}: {claim['verdict']}")
     return report

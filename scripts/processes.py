@@ -110,8 +110,10 @@ def robot_commanded_pose(lcm_url: str, scenario, wait_s: float):
 
 
 def _write_rows(path: Path, header, rows) -> None:
+    from telesmooth.atomic_files import atomic_write
+
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as handle:
+    with atomic_write(path, "w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(header)
         for row in rows:
@@ -210,7 +212,9 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
         names = handles.onboard.arm.joint_names
         write_onboard_logs(Path(out), handles, context, names)
         counts = receiver.rejection_counts(receiver.GetMyContextFromRoot(context))
-        (Path(out) / "onboard_counts.json").write_text(json.dumps(counts, indent=1))
+        from telesmooth.atomic_files import write_text
+
+        write_text(Path(out) / "onboard_counts.json", json.dumps(counts, indent=1))
         telemetry = handles.logs["q_link"].FindLog(context)
         tool = handles.logs["position_measured"].FindLog(context).data().T
         _write_rows(Path(out) / "onboard_telemetry.csv",
