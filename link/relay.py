@@ -351,6 +351,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _relay(parser, args, report)
 
 
+def _exit_with_error(parser, error: Exception) -> None:
+    """One line naming the option (not the function's argument), exit status 2: a bad value
+    is not a usage error, so no usage block."""
+    message = str(error).replace("uplink_in_url", "--in-url").replace("uplink_out_url",
+                                                                     "--out-url")
+    parser.exit(2, f"{parser.prog}: error: {message}\n")
+
+
 def _relay(parser, args, report_path) -> int:
     try:
         config = parse_link_option("--link", args.link) or LinkFaultConfig()
@@ -359,8 +367,7 @@ def _relay(parser, args, report_path) -> int:
             warnings.simplefilter("ignore")   # run_relay warns again, once
             check_relay_urls(args.in_url, args.out_url)
     except ValueError as error:
-        parser.error(str(error).replace("uplink_in_url", "--in-url")
-                     .replace("uplink_out_url", "--out-url"))
+        _exit_with_error(parser, error)
     try:
         run_relay(uplink_in_url=args.in_url, uplink_out_url=args.out_url, config=config,
                   duration_s=args.duration,
@@ -369,8 +376,7 @@ def _relay(parser, args, report_path) -> int:
                   downlink_config=downlink_config, report_path=report_path,
                   progress=not args.quiet)
     except ValueError as error:   # channels, or a URL LCM cannot open
-        parser.error(str(error).replace("uplink_in_url", "--in-url")
-                     .replace("uplink_out_url", "--out-url"))
+        _exit_with_error(parser, error)
     return 0
 
 
