@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import secrets
 import shutil
 import stat
@@ -40,6 +41,7 @@ __all__ = [
     "Outputs",
     "atomic_write",
     "create_new_file",
+    "display_path",
     "write_bytes",
     "write_text",
 ]
@@ -55,6 +57,16 @@ _KIND_NAMES = {stat.S_IFIFO: "a FIFO", stat.S_IFSOCK: "a socket", stat.S_IFBLK: 
 
 def _kind(mode: int) -> str:
     return _KIND_NAMES.get(stat.S_IFMT(mode), "not a regular file")
+
+
+_STAGED = re.compile(r"\.[0-9a-f]{8}\.tmp-")
+
+
+def display_path(path) -> str:
+    """How messages show an output path: quoted, and without the names of the temporary
+    files and staging folders of this module (``.1a2b3c4d.tmp-report.md`` → ``report.md``),
+    so that a failure inside a staged output names the output the user asked for."""
+    return quote_path(_STAGED.sub("", str(path)))
 
 
 def _temporary_name(name: str) -> str:
@@ -94,15 +106,23 @@ def atomic_write(path, mode: str = "w", *, newline: str | None = None,
     except FileNotFoundError:
         existing = None
     if existing is not None and stat.S_ISCHR(existing.st_mode):
-        with open(destination, mode, **text) as handle:
-            yield handle
+        try:
+            with open(destination, mode, **text) as handle:
+                yield handle
+        except OSError as error:     # e.g. /dev/full: "No space left on device"
+            raise OutputPathError(f"{display_path(destination)}: cannot write it "
+                                  f"({error.strerror})") from None
         return
     if existing is not None and not stat.S_ISREG(existing.st_mode):
         raise OutputPathError(f"{quote_path(str(path))} is {_kind(existing.st_mode)}, not a file")
     temporary = destination.with_name(_temporary_name(destination.name))
     file_mode = (stat.S_IMODE(existing.st_mode) if existing is not None
                  else 0o666 & ~_umask())
-    descriptor = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    try:
+        descriptor = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    except OSError as error:
+        raise OutputPathError(f"{display_path(destination)}: cannot write it "
+                              f"({error.strerror})") from None
     try:
         with open(descriptor, mode, **text) as handle:
             yield handle
@@ -110,9 +130,14 @@ def atomic_write(path, mode: str = "w", *, newline: str | None = None,
             os.fsync(handle.fileno())
         os.chmod(temporary, file_mode)
         os.replace(temporary, destination)
-    except BaseException:
+    except BaseException as error:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(temporary)
+        if isinstance(error, OSError) and not isinstance(error, OutputPathError) \
+                and error.filename is None:
+            # A failed write (a full disk) names no file: name the destination.
+            raise OutputPathError(f"{display_path(destination)}: cannot write it "
+                                  f"({error.strerror or error})") from None
         raise
 
 

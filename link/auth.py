@@ -281,6 +281,8 @@ def generate_key_file(path: str | os.PathLike) -> bytes:
         UplinkKeyError: ``path`` exists (a key, or anything else), a parent is a file, or
             the folder cannot be written; the message names the path.
     """
+    if not os.fspath(path).strip():
+        raise UplinkKeyError("uplink key file '': give the path of the file to create")
     path = Path(path)
     label = f"uplink key file {quote_path(os.fspath(path))}"
     if path.exists() or path.is_symlink():

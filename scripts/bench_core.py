@@ -273,14 +273,19 @@ def main(argv=None) -> int:
                           ("--ticks", args.ticks), ("--max-drake-n", args.max_drake_n)):
         if value < 1:
             raise ValueError(f"{option} = {value} must be >= 1")
-    if not (math.isfinite(args.sim_duration) and args.sim_duration >= 0):
-        raise ValueError(f"--sim-duration = {args.sim_duration!r} must be finite and >= 0")
+    if not (math.isfinite(args.sim_duration) and 0 <= args.sim_duration <= MAX_SIM_DURATION_S):
+        raise ValueError(f"--sim-duration = {args.sim_duration!r} must be within 0 and "
+                         f"{MAX_SIM_DURATION_S:g} s")
     with Outputs() as outputs:
         staged = outputs.folder("--out", args.out)
         table = _run(args, staged)
     print(table)
     print(f"wrote {args.out / 'bench_core.json'}", file=sys.stderr)
     return 0
+
+
+MAX_SIM_DURATION_S = 3600.0
+"""Longest --sim-duration, simulated s (two simulations of it are run)."""
 
 
 def _number(text: str) -> float:

@@ -170,6 +170,8 @@ def run_smooth(args) -> int:
 
     if (args.operator is None) != (args.sigma_store is None):
         raise ValueError("--operator and --sigma-store go together")
+    if args.operator is not None and not args.operator.strip():
+        raise ValueError(f"--operator = {quote(args.operator)} must be a non-empty name")
     if args.dt is not None:
         _check_finite("--dt", args.dt)
     with Outputs(inputs={"file": args.input}) as outputs:
@@ -617,7 +619,8 @@ def _add_process_parsers(subparsers) -> None:
                                 "(a restart continues without a jump); 0 = do not wait")
         p.set_defaults(handler=run_process, process=name)
     p = subparsers.add_parser("keygen", help="write a fresh uplink HMAC key file (mode 0600)")
-    p.add_argument("path", type=Path, help="the key file to create (never overwritten)")
+    p.add_argument("path", help="the key file to create (never overwritten; missing folders "
+                                "are made with mode 0700)")
     p.set_defaults(handler=run_keygen)
     p = subparsers.add_parser(
         "link-relay", add_help=False,

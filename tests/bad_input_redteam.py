@@ -271,6 +271,16 @@ def cases() -> list[Case]:
         ["bench", "--out", "in.csv", "--max-n", "100", "--repeat", "1", "--ticks", "5",
          "--sim-duration", "0"], inputs=("in.csv",), absent=(), must_name=("--out", "in.csv"))
 
+    add("smooth-o-dev-full", "3.1", ["smooth", "in.csv", "-o", "/dev/full", *LIMITS],
+        inputs=("in.csv",), absent=(), must_name=("/dev/full", "No space left"))
+    add("smooth-metrics-dev-full", "3.1", [*SMOOTH, "--metrics", "/dev/full"],
+        inputs=("in.csv",), must_name=("/dev/full",))
+    add("demo-out-dev-null", "3.1", ["demo", "--out", "/dev/null"], absent=(),
+        must_name=("--out = '/dev/null'",))
+    add("simulate-meshcat-out-is-file", "3.1", ["simulate", "--meshcat", "--out", "in.csv"],
+        inputs=("in.csv",), absent=(), must_name=("--out", "in.csv"))
+    add("keygen-empty-path", "2", ["keygen", ""], absent=(), must_name=("keygen",))
+
     # 3.2: unbounded resources
     add("smooth-input-dev-zero", "3.2", ["smooth", "/dev/zero", "-o", "out/o.csv", *LIMITS],
         must_name=("/dev/zero",))
@@ -351,6 +361,10 @@ def cases() -> list[Case]:
          "--link", "[" * 50_000 + "]" * 50_000], absent=(), must_name=("--link",))
     add("bench-max-n-huge", "3.2", ["bench", "--out", "out", "--max-n", "-5"],
         must_name=("--max-n",))
+    add("bench-sim-duration-huge", "3.2", ["bench", "--out", "out", "--max-n", "100",
+                                           "--repeat", "1", "--ticks", "5",
+                                           "--sim-duration", "1e9"],
+        must_name=("--sim-duration",))
     add("foresight-step-0", "3.2", ["foresight", "--step", "0", "--out", "out"],
         must_name=("--step", "0"))
     add("experiment-settle-huge", "3.2",
@@ -362,6 +376,23 @@ def cases() -> list[Case]:
         must_name=("nope.csv",))
     add("smooth-input-is-dir", "3.3", ["smooth", "dir", "-o", "out/o.csv", *LIMITS],
         must_name=("dir",))
+    add("smooth-input-empty", "3.3", ["smooth", "e.csv", "-o", "out/o.csv", *LIMITS],
+        setup=write("e.csv", ""), must_name=("e.csv", "empty"))
+    add("smooth-input-header-only", "3.3", ["smooth", "h.csv", "-o", "out/o.csv", *LIMITS],
+        setup=write("h.csv", "t,a\n"), must_name=("h.csv",))
+    add("smooth-sigma-store-operator-not-mapping", "3.3",
+        [*SMOOTH, "--operator", "bob", "--sigma-store", "s.json"],
+        setup=write("s.json", '{"format": "telesmooth-operator-sigma/1", "operators": '
+                              '{"bob": [1, 2]}}'), inputs=("s.json",), must_name=("s.json",))
+    add("smooth-operator-empty", "3.3",
+        [*SMOOTH, "--operator", " ", "--sigma-store", "s.json"], absent=("out", "s.json"),
+        must_name=("operator",))
+    add("scenario-name-empty", "3.3", [*SIM, "--scenario-name", "", "--duration", "1"],
+        expect="ok", absent=(), note="empty name: the default entry")
+    add("compare-solver-bad", "3.3", ["compare", "--solver", "cplex", "--out", "out"],
+        must_name=("--solver",))
+    add("foresight-method-bad", "3.3", ["foresight", "--method", "magic", "--out", "out"],
+        must_name=("--method",))
     add("smooth-ruckig-tiny-limits", "3.3",
         ["smooth", "in.csv", "-o", "out/o.csv", "--method", "ruckig", "--acc-max", "1e-300",
          "--jerk-max", "1e-300", "--vel-max", "1e-300"], inputs=("in.csv",),
