@@ -257,15 +257,7 @@ class Outputs:
                 written.
         """
         path = Path(path)
-        label = f"{option} = {quote_path(str(path))}"
-        try:
-            existing = os.stat(path)
-        except FileNotFoundError:
-            existing = None
-        except NotADirectoryError:
-            raise OutputPathError(f"{label}: {self._file_in_the_way(path)}") from None
-        except OSError as error:
-            raise OutputPathError(f"{label}: cannot use it ({error.strerror})") from None
+        label, existing = self._examine(option, path)
         if existing is not None and stat.S_ISDIR(existing.st_mode):
             raise OutputPathError(f"{label} is a folder; give a file name")
         if existing is not None and not (stat.S_ISREG(existing.st_mode)
@@ -289,8 +281,9 @@ class Outputs:
         try:
             os.close(os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
         except OSError as error:
-            raise OutputPathError(f"{label}: cannot write in {quote_path(str(destination.parent))}"
-                                  f" ({error.strerror})") from None
+            raise OutputPathError(f"{label}: cannot write in "
+                                  f"{quote_path(str(destination.parent))} ({error.strerror})") \
+                from None
         self._files.append((option, path, destination, temporary))
         return temporary
 
@@ -305,15 +298,7 @@ class Outputs:
                 written.
         """
         path = Path(path)
-        label = f"{option} = {quote_path(str(path))}"
-        try:
-            existing = os.stat(path)
-        except FileNotFoundError:
-            existing = None
-        except NotADirectoryError:
-            raise OutputPathError(f"{label}: {self._file_in_the_way(path)}") from None
-        except OSError as error:
-            raise OutputPathError(f"{label}: cannot use it ({error.strerror})") from None
+        label, existing = self._examine(option, path)
         if existing is not None and not stat.S_ISDIR(existing.st_mode):
             what = "a file" if stat.S_ISREG(existing.st_mode) else _kind(existing.st_mode)
             raise OutputPathError(f"{label} is {what}, not a folder; give a folder name")
@@ -405,6 +390,18 @@ class Outputs:
             self.abort()
 
     # --- helpers ---
+
+    def _examine(self, option: str, path: Path):
+        """(the label of messages, ``os.stat`` of ``path`` or None if it does not exist)."""
+        label = f"{option} = {quote_path(str(path))}"
+        try:
+            return label, os.stat(path)
+        except FileNotFoundError:
+            return label, None
+        except NotADirectoryError:
+            raise OutputPathError(f"{label}: {self._file_in_the_way(path)}") from None
+        except OSError as error:
+            raise OutputPathError(f"{label}: cannot use it ({error.strerror})") from None
 
     def _check_not_input(self, option: str, path: Path) -> None:
         for name, source in self._inputs.items():

@@ -28,6 +28,21 @@ def run(capsys, *argv):
     return status, captured.out, captured.err
 
 
+def write_trajectory(folder, name: str = "in.csv", rows: int = 40, jump: float = 0.0):
+    """A valid 4 Hz joint trajectory ``t,a,b`` (radians) in ``folder``, joint a stepping by
+    ``jump`` half-way; returns its path."""
+    import numpy as np
+
+    from telesmooth.smoothing.trajectory_io import write_joint_csv
+
+    t = 0.25 * np.arange(rows)
+    q = 0.1 * np.sin(np.outer(t, [1.0, 2.0]) / 3.0)
+    q[rows // 2:, 0] += jump
+    path = Path(folder) / name
+    write_joint_csv(path, t, q, ["a", "b"])
+    return path
+
+
 def digest(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 

@@ -7,13 +7,11 @@ named like a time column (``t``, ``sent_t``) nor twice in ``name=value`` limits;
 of the smoothing settings are renamed to the options that set them (``name_fields``).
 """
 
-import numpy as np
 import pytest
-from bad_input_helpers import assert_one_line_error, run, snapshot
+from bad_input_helpers import assert_one_line_error, run, snapshot, write_trajectory
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from telesmooth.smoothing.trajectory_io import write_joint_csv
 from telesmooth.user_input import parse_plain_number
 
 LIMITS = ["--acc-max", "0.05", "--jerk-max", "0.1"]
@@ -22,9 +20,7 @@ LIMITS = ["--acc-max", "0.05", "--jerk-max", "0.1"]
 @pytest.fixture
 def folder(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    t = 0.25 * np.arange(40)
-    write_joint_csv(tmp_path / "in.csv", t, 0.1 * np.sin(np.outer(t, [1.0, 2.0]) / 3.0),
-                    ["a", "b"])
+    write_trajectory(tmp_path)
     return tmp_path
 
 

@@ -8,12 +8,10 @@ one line (exit 2) and anything else as one line with the hint to rerun with ``--
 1); ``--debug`` shows the traceback.
 """
 
-import numpy as np
 import pytest
-from bad_input_helpers import assert_one_line_error, run, snapshot
+from bad_input_helpers import assert_one_line_error, run, snapshot, write_trajectory
 
 from telesmooth.scripts import cli
-from telesmooth.smoothing.trajectory_io import write_joint_csv
 
 LIMITS = ["--acc-max", "0.05", "--jerk-max", "0.1"]
 
@@ -21,12 +19,8 @@ LIMITS = ["--acc-max", "0.05", "--jerk-max", "0.1"]
 @pytest.fixture
 def folder(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    t = 0.25 * np.arange(40)
-    q = 0.1 * np.sin(np.outer(t, [1.0, 2.0]) / 3.0)
-    write_joint_csv(tmp_path / "in.csv", t, q, ["a", "b"])
-    far = q.copy()
-    far[20:, 0] += 9e5                   # a step far too large for tiny limits
-    write_joint_csv(tmp_path / "far.csv", t, far, ["a", "b"])
+    write_trajectory(tmp_path)
+    write_trajectory(tmp_path, "far.csv", jump=9e5)    # a step far too large for tiny limits
     (tmp_path / "dir").mkdir()
     return tmp_path
 

@@ -9,12 +9,10 @@ a folder's place) before any work, and puts the staged outputs in place only on 
 import os
 import stat
 
-import numpy as np
 import pytest
-from bad_input_helpers import assert_one_line_error, run, snapshot
+from bad_input_helpers import assert_one_line_error, run, snapshot, write_trajectory
 
 from telesmooth.atomic_files import Outputs, OutputPathError, atomic_write, write_text
-from telesmooth.smoothing.trajectory_io import write_joint_csv
 
 LIMITS = ["--acc-max", "0.05", "--jerk-max", "0.1"]
 
@@ -23,9 +21,7 @@ LIMITS = ["--acc-max", "0.05", "--jerk-max", "0.1"]
 def folder(tmp_path, monkeypatch):
     """A scratch folder (the working directory) with an input trajectory ``in.csv``."""
     monkeypatch.chdir(tmp_path)
-    t = 0.25 * np.arange(40)
-    q = 0.1 * np.sin(np.outer(t, [1.0, 2.0]) / 3.0)
-    write_joint_csv(tmp_path / "in.csv", t, q, ["a", "b"])
+    write_trajectory(tmp_path)
     (tmp_path / "dir").mkdir()
     (tmp_path / "link.csv").symlink_to("in.csv")
     return tmp_path

@@ -17,7 +17,7 @@ import zipfile
 
 import numpy as np
 import pytest
-from bad_input_helpers import assert_one_line_error, deadline, run, snapshot
+from bad_input_helpers import assert_one_line_error, deadline, run, snapshot, write_trajectory
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -25,7 +25,7 @@ from telesmooth.datasets.haptic_recording import read_haptic_csv, read_haptic_np
 from telesmooth.diagrams.typed_yaml import load_yaml_text
 from telesmooth.link.auth import load_key
 from telesmooth.smoothing.reduced_q import stored_operators
-from telesmooth.smoothing.trajectory_io import read_joint_csv, write_joint_csv
+from telesmooth.smoothing.trajectory_io import read_joint_csv
 from telesmooth.user_input import MAX_YAML_NODES, MAX_YAML_SCALAR_CHARS
 
 LIMITS = ["--acc-max", "0.05", "--jerk-max", "0.1"]
@@ -34,8 +34,7 @@ LIMITS = ["--acc-max", "0.05", "--jerk-max", "0.1"]
 @pytest.fixture
 def folder(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    t = 0.25 * np.arange(40)
-    write_joint_csv(tmp_path / "in.csv", t, 0.1 * np.sin(np.outer(t, [1.0, 2.0])), ["a", "b"])
+    write_trajectory(tmp_path)
     os.mkfifo(tmp_path / "fifo")
     with open(tmp_path / "sparse", "wb") as handle:
         handle.truncate(1 << 30)           # 1 GiB of zeros that takes no disk space
