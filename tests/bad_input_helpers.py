@@ -47,10 +47,19 @@ def digest(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+def _signature(path: Path):
+    if path.is_dir():
+        return "dir"
+    info = path.stat()
+    if info.st_size > 16 << 20:      # e.g. a sparse 1 GiB file: its size and change time
+        return (info.st_size, info.st_mtime_ns)
+    return digest(path)
+
+
 def snapshot(folder) -> dict:
     """Every file under ``folder`` (hidden ones too) with its digest, and every folder."""
     folder = Path(folder)
-    return {str(p.relative_to(folder)): (digest(p) if p.is_file() else "dir")
+    return {str(p.relative_to(folder)): _signature(p)
             for p in sorted(folder.rglob("*")) if not p.is_symlink() and (p.is_file()
                                                                           or p.is_dir())}
 

@@ -105,7 +105,7 @@ _PLAIN = st.from_regex(r"\A[ \t]*[+-]?([0-9]{1,8}\.?[0-9]{0,8}|\.[0-9]{1,8})([eE
                        r"[ \t]*\Z")
 
 
-@settings(derandomize=True, database=None, deadline=None, max_examples=200)
+@settings(derandomize=True, database=None, deadline=None, max_examples=100)
 @given(text=st.one_of(_PLAIN, st.text(max_size=12)))
 def test_plain_numbers_are_what_float_reads_from_ascii_digits_without_underscores(text):
     """Oracle: float() on text of only ASCII digits, signs, '.', 'e', ASCII spaces."""
