@@ -334,6 +334,8 @@ MAX_PROCESS_RUN_S = 7 * 24 * 3600.0
 memory as they run)."""
 MIN_PLANT_STEP_S = 1e-5
 """Shortest plant step of the experiment, s."""
+MAX_WORKERS = 64
+"""Most worker processes of the experiment's local Dask cluster."""
 
 
 def _check_at_most(option: str, value: float, limit: float) -> None:
@@ -573,8 +575,8 @@ def run_experiment_command(args) -> int:
                                   offline_solver=args.solver)
     except ValueError as error:
         raise ValueError(name_fields(str(error), _EXPERIMENT_OPTIONS)) from None
-    if args.workers < 0:
-        raise ValueError(f"--workers = {args.workers} must be >= 0")
+    if not 0 <= args.workers <= MAX_WORKERS:
+        raise ValueError(f"--workers = {args.workers} must be within 0 and {MAX_WORKERS}")
     with _scenario_outputs(args, base) as outputs:
         report = write_experiment_report(outputs.folder("--out", args.out), base, config,
                                          workers=args.workers, scheduler=args.scheduler)
@@ -646,6 +648,7 @@ def run_process(args) -> int:
     scenario = _load_scenario(args)
     url = check_lcm_url("--lcm-url" if args.lcm_url else "lcm_url (scenario)",
                         args.lcm_url or scenario.lcm_url)
+    _check_at_most("settle_s", scenario.settle_s, MAX_SIMULATED_S)
     if args.duration is not None:
         _check_finite("--duration", args.duration)
         _check_at_most("--duration", args.duration, MAX_PROCESS_RUN_S)

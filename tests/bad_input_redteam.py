@@ -567,6 +567,12 @@ def cases() -> list[Case]:
     add("experiment-settle-negative", "3.3",
         ["experiment", "--quick", "--settle", "-1", "--out", "out", "--workers", "0"],
         must_name=("--settle", "-1"))
+    add("experiment-workers-huge", "3.2",
+        ["experiment", "--quick", "--workers", "100000", "--out", "out"],
+        must_name=("--workers", "100000"))
+    add("ground-settle-huge", "3.2",
+        ["ground", *MEMQ, "--no-auth", "--scenario-text", "{settle_s: 1.0e+9}",
+         "--resume-wait", "0", "--realtime", "0"], absent=(), must_name=("settle_s",))
     add("experiment-workers-negative", "3.3",
         ["experiment", "--quick", "--workers", "-1", "--out", "out"],
         must_name=("--workers", "-1"))
