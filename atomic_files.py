@@ -319,6 +319,27 @@ class Outputs:
         self._folders.append((option, path, staging))
         return staging
 
+    def work_folder(self, option: str, path) -> Path:
+        """Checks the output folder ``path`` of ``option`` and makes it (with its missing
+        parents) now, for a command that keeps its work there as it goes (a journal a rerun
+        continues, e.g. the experiment's records): its files are written in place, each
+        atomically by its writer. On abort only the folders made here that are still empty
+        are removed.
+
+        Raises:
+            OutputPathError: as :meth:`folder`.
+        """
+        path = Path(path)
+        label, existing = self._examine(option, path)
+        if existing is not None and not stat.S_ISDIR(existing.st_mode):
+            what = "a file" if stat.S_ISREG(existing.st_mode) else _kind(existing.st_mode)
+            raise OutputPathError(f"{label} is {what}, not a folder; give a folder name")
+        for other, out, _, _ in self._files:
+            if _is_within(out, path):
+                raise OutputPathError(f"{label} holds the output of {other}")
+        self._make_parents(label, path)
+        return path
+
     def drop(self, staged: Path) -> None:
         """Withdraws the staged file ``staged`` (as :meth:`file` returned it): its
         destination is left as it is."""

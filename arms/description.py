@@ -47,12 +47,16 @@ import numpy as np
 __all__ = [
     "AIR_BEARING_ARM_3DOF",
     "ArmDescription",
+    "DRIVE_FIELDS",
+    "PLANT_PRESETS",
     "JointDescription",
     "LinkDescription",
     "MODELS_DIRECTORY",
     "SPACE_ARM_6DOF",
     "arm_sdf",
+    "drive_preset",
     "model_path",
+    "with_drive",
     "write_models",
 ]
 
@@ -106,8 +110,8 @@ class JointDescription:
         max_effort_n_m: Motor torque limit, N·m (> 0): the plant's PD output is clamped to it.
         stiffness_n_m_per_rad: Link-side spring stiffness of the flexible model, N·m/rad.
         damping_n_m_s_per_rad: Link-side damping of the flexible model, N·m·s/rad.
-        motor_kp: Proportional gain of the motor-side servo (plant PD), N·m/rad.
-        motor_kd: Derivative gain of the motor-side servo, N·m·s/rad.
+        motor_kp_n_m_per_rad: Proportional gain of the motor-side servo (plant PD), N·m/rad.
+        motor_kd_n_m_s_per_rad: Derivative gain of the motor-side servo, N·m·s/rad.
         rotor_inertia_kg_m2: Rotor inertia before the gear, kg·m²; the reflected inertia is
             rotor_inertia·gear_ratio².
         gear_ratio: Gear ratio (dimensionless).
@@ -120,8 +124,8 @@ class JointDescription:
     max_effort_n_m: float
     stiffness_n_m_per_rad: float
     damping_n_m_s_per_rad: float
-    motor_kp: float
-    motor_kd: float
+    motor_kp_n_m_per_rad: float
+    motor_kd_n_m_s_per_rad: float
     rotor_inertia_kg_m2: float = 1e-4
     gear_ratio: float = 100.0
 
@@ -273,6 +277,60 @@ AIR_BEARING_ARM_3DOF = ArmDescription(
 """The air-bearing configuration as a planar 3-joint model (our numbers)."""
 
 
+DRIVE_FIELDS = ("stiffness_n_m_per_rad", "damping_n_m_s_per_rad", "rotor_inertia_kg_m2",
+                "motor_kp_n_m_per_rad", "motor_kd_n_m_s_per_rad")
+"""The drive-train parameters of a joint that a scenario can set (the plant's vibration)."""
+
+PLANT_PRESETS = ("lab", "lightweight")
+"""Named sets of drive parameters: ``"lab"``, each arm's own numbers above (the laboratory
+set-up: lowest mode about 2.7 Hz with damping ratio about 0.07 at the default start pose of
+the air-bearing arm); ``"lightweight"``, a lightweight space arm: springs 10× softer and
+dampers about 3× weaker, lowest mode 0.9 Hz (air-bearing arm at its default start pose) and
+1.2 Hz (6-DOF arm at the OneOfEverything start pose) with damping ratio about 0.02 (for
+scale: the shuttle arm's unloaded first mode is 0.35-0.71 Hz depending on configuration).
+The modes depend on the pose: :func:`telesmooth.arms.modes.plant_modes` computes them."""
+
+_LIGHTWEIGHT_DRIVES = {
+    "space_arm": {"stiffness_n_m_per_rad": (200.0, 200.0, 100.0, 20.0, 10.0, 2.0),
+                  "damping_n_m_s_per_rad": (0.6, 0.6, 0.3, 0.06, 0.03, 0.006)},
+    "air_bearing_arm": {"stiffness_n_m_per_rad": (50.0, 30.0, 10.0),
+                        "damping_n_m_s_per_rad": (0.15, 0.09, 0.03)},
+}
+
+
+def with_drive(arm: ArmDescription, **values) -> ArmDescription:
+    """``arm`` with the drive parameters of its joints replaced.
+
+    Args:
+        arm: The arm.
+        **values: Field of :data:`DRIVE_FIELDS` → one value per joint, base to tip.
+
+    Raises:
+        ValueError: for an unknown field or a wrong number of values.
+    """
+    unknown = sorted(set(values) - set(DRIVE_FIELDS))
+    if unknown:
+        raise ValueError(f"unknown drive field(s) {unknown}; known: {list(DRIVE_FIELDS)}")
+    for field, per_joint in values.items():
+        if len(per_joint) != arm.num_joints:
+            raise ValueError(f"{field} has {len(per_joint)} values; the arm {arm.name!r} has "
+                             f"{arm.num_joints} joints")
+    joints = tuple(
+        dataclasses.replace(joint, **{field: float(per_joint[index])
+                                      for field, per_joint in values.items()})
+        for index, joint in enumerate(arm.joints))
+    return dataclasses.replace(arm, joints=joints)
+
+
+def drive_preset(arm: ArmDescription, preset: str) -> ArmDescription:
+    """``arm`` with the drive parameters of a named preset (:data:`PLANT_PRESETS`)."""
+    if preset not in PLANT_PRESETS:
+        raise ValueError(f"preset = {preset!r} must be one of {PLANT_PRESETS}")
+    if preset == "lab":
+        return arm
+    return with_drive(arm, **_LIGHTWEIGHT_DRIVES[arm.name])
+
+
 def _fmt(values: Sequence[float]) -> str:
     return " ".join(f"{float(v):.12g}" for v in values)
 
@@ -381,8 +439,8 @@ def arm_sdf(arm: ArmDescription, *, flexible: bool) -> str:
                 f"      <drake:rotor_inertia>{joint.rotor_inertia_kg_m2:.12g}"
                 f"</drake:rotor_inertia>\n"
                 f"      <drake:gear_ratio>{joint.gear_ratio:.12g}</drake:gear_ratio>\n"
-                f'      <drake:controller_gains p="{joint.motor_kp:.12g}" '
-                f'd="{joint.motor_kd:.12g}"/>\n'
+                f'      <drake:controller_gains p="{joint.motor_kp_n_m_per_rad:.12g}" '
+                f'd="{joint.motor_kd_n_m_s_per_rad:.12g}"/>\n'
                 "    </joint>\n"
             )
             dynamics = (

@@ -63,7 +63,7 @@ from telesmooth.diagrams.offline import (
     validate_joint_path,
 )
 from telesmooth.diagrams.scenario import Scenario, make_haptic_recording
-from telesmooth.diagrams.simulation import sample_at, tool_positions
+from telesmooth.diagrams.simulation import plant_summary, sample_at, tool_positions
 from telesmooth.diagrams.teleoperation import scenario_smoother_config
 from telesmooth.smoothing.methods import SmoothingSettings, smooth_recording
 from telesmooth.smoothing.offline import OFFLINE_SOLVERS
@@ -80,6 +80,7 @@ from telesmooth.smoothing.validation import as_per_joint
 __all__ = [
     "COMPARE_METHODS",
     "Comparison",
+    "LEAST_DEFORMATION",
     "ComparisonSetup",
     "OperatorSamples",
     "SETTLED_TOLERANCE_M",
@@ -95,8 +96,13 @@ __all__ = [
 ]
 
 COMPARE_METHODS = ("original", "kf", "kf-predictor", "offline-ks", "offline-cks",
-                   "offline-cks-trajectory", "bmfls", "online-cks", "online-hard", "ruckig")
+                   "offline-cks-trajectory", "offline-hard", "bmfls", "online-cks",
+                   "online-hard", "ruckig")
 """Every method :func:`compare_methods` knows, in the order of the paper's Table 2."""
+
+LEAST_DEFORMATION = "offline-hard"
+"""The reference for how much deformation the limits force (the commands closest to the
+operator within them): reports set every method's E_def beside it."""
 
 _REFERENCE = "original"
 
@@ -167,6 +173,10 @@ class Comparison:
     max_jerk: np.ndarray
     runs: dict
 
+    def plant(self) -> dict:
+        """The plant every method ran on, with its vibration modes (:func:`plant_summary`)."""
+        return plant_summary(self.scenario, self.q_start)
+
     def table(self) -> list[dict]:
         """One row per method with the Table 2 figures (worst joint for per-joint values)."""
         return [{"method": name, **run_summary(run.metrics),
@@ -230,7 +240,7 @@ def method_settings(scenario: Scenario, method: str, offline_solver: str = "drak
         max_acceleration=config.max_acceleration_rad_per_s2,
         max_jerk=config.max_jerk_rad_per_s3, sigma=config.sigma, r=config.r, lag=config.lag,
         fixed_lag_method=config.fixed_lag_method, reduced_q=config.reduced_q,
-        offline_solver=offline_solver)
+        offline_solver=offline_solver, start_prior=config.start_prior)
     if method == "offline-cks-trajectory":
         return "offline-cks", dataclasses.replace(settings, constraint="trajectory",
                                                   rest_at_end=True)
@@ -438,8 +448,9 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
     simulated = time.perf_counter()
 
     fk = setup.fk
-    tracker_t = logs["position_measured"].t_s
-    tool = logs["position_measured"].values
+    tracker = logs["tracker"]
+    tracker_t = tracker.t_s
+    tool = tracker.tool_position_m
     response_t = (np.arange(num_samples) + delay) * period + ramp
     measured = sample_at(tracker_t, tool, response_t)
     e = tracking_errors(fk(estimate), measured)
@@ -473,7 +484,7 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
     metrics["latency_s"] = response_latency(
         setup.operator_tool_m, setup.t_s, tracker_t, tool,
         max_latency_s=min(_MAX_LATENCY_S, float(tracker_t[-1] - setup.t_s[0]) / 2))
-    deflection = logs["q_link"].values - logs["q_motor"].values
+    deflection = tracker.q_link - tracker.q_motor
     metrics["link_deflection_max_abs_rad"] = np.abs(deflection).max(axis=0).tolist()
     violations = validate_joint_path(packets, period * np.arange(len(packets)), scenario,
                                      start_position=q_start, check_fd_limits=False,
@@ -488,7 +499,7 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
     return MethodRun(
         method=label, delay_ticks=delay, estimate=estimate, packets=packets,
         t_s=period * np.arange(len(packets)), tracker_t_s=tracker_t, tool_position_m=tool,
-        q_link=logs["q_link"].values, q_motor=logs["q_motor"].values, response_error_m=e,
+        q_link=tracker.q_link, q_motor=tracker.q_motor, response_error_m=e,
         operator_error_m=e_operator, metrics=metrics, timings_s=timings)
 
 

@@ -48,9 +48,12 @@ from telesmooth.diagrams.teleoperation import (
     AddOnboardRobot,
     AddOperatorTargets,
     add_onboard_loggers,
+    connect_uplink_to_robot,
     scenario_smoother_config,
 )
+from telesmooth.systems.laser_tracker import tracker_record
 from telesmooth.smoothing.metrics import VIOLATION_RTOL, finite_differences, limit_statistics
+from telesmooth.smoothing.kalman import start_prior
 from telesmooth.smoothing.model import JerkModel
 from telesmooth.smoothing.offline import (
     HISTORY_LENGTH,
@@ -380,7 +383,8 @@ def plan_offline(scenario: Scenario, *, constraint: str = "trajectory", max_velo
     result = solve_offline_cks(
         z, model, max_acceleration=smoother.max_acceleration_rad_per_s2,
         max_jerk=smoother.max_jerk_rad_per_s3, max_velocity=velocity, constraint=constraint,
-        rest_at_end=True, start_position=q_start, joint_names=names)
+        rest_at_end=True, start_position=q_start, joint_names=names,
+        prior=start_prior(smoother.start_prior, q_start, model))
     summary = OfflineSolveSummary(
         is_success=bool(result.is_success), solution_results=result.solution_results,
         solver_name=result.solver_name, objective=result.objective,
@@ -549,8 +553,8 @@ class OfflinePlaybackHandles:
         uplink: The 4 Hz uplink (same system as the online chain's).
         robot: The flexible-joint arm.
         logs: "sequence_number", "send_time", "q_sent", "state_sent" at the uplink period
-            (a row at t_k shows packet k−1) and the robot's "q_link", "q_motor",
-            "position_measured", "command_rejected" at the tracker period.
+            (a row at t_k shows packet k−1) and the robot's "tracker" (its samples with their
+            measurement times) and "command_rejected" at the tracker period.
         plan: The plan played.
         duration_s: Suggested simulated time: the last packet plus ``scenario.settle_s``
             (and at least one tick more, so the loggers see the last packet), or
@@ -597,7 +601,7 @@ def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q
                     uplink.get_state_smoothed_input_port())
     # Stage 3: the onboard robot, at rest at the committed pose.
     robot = AddOnboardRobot(builder, scenario, initial_position_rad=q_start)
-    builder.Connect(uplink.get_q_sent_output_port(), robot.GetInputPort("q_commanded"))
+    connect_uplink_to_robot(builder, uplink, robot)
     logs = {
         "sequence_number": LogVectorOutput(uplink.get_sequence_number_output_port(), builder,
                                            period),
@@ -679,9 +683,15 @@ def run_offline(scenario: Scenario, *, constraint: str = "trajectory", max_veloc
 
 
 def copy_logs(loggers: dict, root_context) -> dict:
-    """Copies each VectorLogSink's log (name → :class:`SignalLog`) out of a root context."""
+    """Copies each VectorLogSink's log out of a root context: name → :class:`SignalLog`,
+    except "tracker" (:func:`add_onboard_loggers`), which becomes a
+    :class:`~telesmooth.systems.laser_tracker.TrackerRecord`: each sample at the time it
+    was measured, not the time it was logged."""
     copies = {}
     for name, logger in loggers.items():
         log = logger.FindLog(root_context)
-        copies[name] = SignalLog(t_s=log.sample_times().copy(), values=log.data().T.copy())
+        if name == "tracker":
+            copies[name] = tracker_record(log.data().T)
+        else:
+            copies[name] = SignalLog(t_s=log.sample_times().copy(), values=log.data().T.copy())
     return copies

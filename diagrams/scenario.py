@@ -69,6 +69,7 @@ __all__ = [
     "HAPTIC_SOURCES",
     "HapticScenario",
     "Scenario",
+    "describe_operator",
     "load_scenario",
     "make_haptic_recording",
 ]
@@ -224,6 +225,10 @@ class Scenario:
                 math.isfinite(self.simulation_duration_s) and self.simulation_duration_s > 0):
             raise ValueError(
                 f"simulation_duration_s = {self.simulation_duration_s!r} must be positive")
+        try:
+            self.onboard.arm_description       # the drive's per-joint values fit the arm
+        except ValueError as error:
+            raise ValueError(f"onboard.{error}") from None
         names = self.arm_description.joint_names
         for field in ("sigma", "max_acceleration_rad_per_s2", "max_jerk_rad_per_s3"):
             try:
@@ -255,6 +260,22 @@ class Scenario:
         if self.workspace is not None:
             return self.workspace
         return AIR_BEARING_WORKSPACE if self.arm == "air_bearing_arm" else SPACE_ARM_WORKSPACE
+
+
+def describe_operator(scenario: Scenario) -> str:
+    """Who operates, for a report: the LASA shape, demonstration and speed, the synthetic
+    operator's seed, the recording's file, or a live device."""
+    haptic = scenario.haptic
+    if haptic.source == "lasa":
+        mapping = haptic.lasa_mapping
+        speed = WorkspaceMapping().time_scale / mapping.time_scale
+        return (f"the LASA demonstration `{haptic.lasa_shape}` #{haptic.lasa_demo} at "
+                f"{speed:g}× the demonstrator's hand speed (time_scale {mapping.time_scale:g})")
+    if haptic.source == "synthetic":
+        return f"the synthetic operator (seed {haptic.synthetic.seed})"
+    if haptic.source == "file":
+        return f"the recording `{haptic.file}`"
+    return "a live haptic device over LCM"
 
 
 def make_haptic_recording(scenario: Scenario) -> HapticRecording | None:

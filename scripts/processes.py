@@ -180,6 +180,7 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
     from pydrake.systems.analysis import Simulator
 
     from telesmooth.diagrams.teleoperation import MakeOnboardDiagram
+    from telesmooth.systems.laser_tracker import tracker_record
     from telesmooth.systems.link_guard import GUARD_MODES
 
     from telesmooth.diagrams.channels import TELEOP_JOINT_COMMAND
@@ -229,12 +230,11 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
         from telesmooth.atomic_files import write_text
 
         write_text(Path(out) / "onboard_counts.json", json.dumps(counts, indent=1))
-        telemetry = handles.logs["q_link"].FindLog(context)
-        tool = handles.logs["position_measured"].FindLog(context).data().T
+        tracker = tracker_record(handles.logs["tracker"].FindLog(context).data().T)
         _write_rows(Path(out) / "onboard_telemetry.csv",
                     ["t"] + [f"q_link_{j}" for j in names] + ["tool_x", "tool_y", "tool_z"],
-                    ([t, *q, *p] for t, q, p in zip(telemetry.sample_times(),
-                                                    telemetry.data().T, tool)))
+                    ([t, *q, *p] for t, q, p in zip(tracker.t_s, tracker.q_link,
+                                                    tracker.tool_position_m)))
     return 0
 
 

@@ -22,8 +22,16 @@ from pathlib import Path
 import numpy as np
 
 from telesmooth.atomic_files import atomic_write, write_text
-from telesmooth.diagrams.simulation import SimulationRecord, run_metrics, simulate, tool_positions
+from telesmooth.diagrams.simulation import (
+    SimulationRecord,
+    plant_text,
+    response_errors,
+    run_metrics,
+    simulate,
+    tool_positions,
+)
 from telesmooth.scripts.figures import FigureWriter
+from telesmooth.scripts.formatting import limit_ratio
 from telesmooth.smoothing.metrics import finite_differences
 from telesmooth.smoothing.validation import as_per_joint
 
@@ -131,44 +139,65 @@ def _write_figures(out: Path, record: SimulationRecord, metrics: dict) -> list[t
     ax.legend(fontsize=8)
     save(fig, "end_effector.png", "End-effector tracks")
 
-    ramp = metrics["tracking"]["ramp_s"]
-    times = record.packet_t_s + ramp
-    inside = times <= record.tracker_t_s[-1]
-    index = np.clip(np.searchsorted(record.tracker_t_s, times[inside] + 1e-9) - 1, 0, None)
-    error = np.linalg.norm(commanded[inside] - record.tool_position_m[index], axis=1)
+    response = response_errors(record)
     fig, ax = plt.subplots(figsize=(9, 3))
-    ax.plot(times[inside], 1000 * error, color="C3", lw=1)
-    ax.set_xlabel("time [s]")
+    ax.plot(response.response_t_s, 1000 * response.response_m, color="C3", lw=1)
+    ax.set_xlabel("time the tracker was read (the set-point on the command) [s]")
     ax.set_ylabel("‖FK(sent) − tracker‖ [mm]")
     save(fig, "tracking_error.png", "Robot response error to each command over time")
 
+    # The robot against the operator's intent along the operator's path: where on the
+    # drawing it deviates (the tracks above overlap at this scale).
+    step = np.linalg.norm(np.diff(operator, axis=0), axis=1)
+    path_m = np.interp(response.chain_t_s - delay - response.ramp_s, record.target_t_s,
+                       np.concatenate([[0.0], np.cumsum(step)]))
+    fig, ax = plt.subplots(figsize=(9, 3))
+    ax.plot(path_m, 1000 * response.chain_m, color="C3", lw=1)
+    ax.set_xlabel("distance along the operator's path [m]")
+    ax.set_ylabel("‖robot − operator‖ [mm]")
+    save(fig, "error_along_path.png",
+         "The robot against the operator's intent along the path (the designed delay removed)")
+
     fig, axes = plt.subplots(2, 1, figsize=(9, 4.5), sharex=True)
     for j, name in enumerate(names):
-        axes[0].semilogy(record.tick_t_s, record.sigma[:, j], lw=1, label=name)
-    axes[0].set_ylabel("σ")
+        # σ changes once per 4 Hz tick: drawn as the steps it is.
+        axes[0].step(record.tick_t_s, record.sigma[:, j], where="post", lw=1, label=name)
+    axes[0].set_yscale("log")
+    axes[0].set_ylabel("σ [rad²/s⁷]")
     axes[0].legend(fontsize=7, ncol=3)
+    horizon = scenario.collision_checker.distance_horizon_m
     axes[1].plot(record.target_t_s, record.min_distance_m, color="C0", lw=1,
                  label="pre-simulator min distance [m]")
+    axes[1].axhline(horizon, color="C0", ls=":", lw=0.8,
+                    label=f"distance horizon {horizon:g} m (farther is reported as this)")
     axes[1].step(record.tick_t_s, 0.1 * record.holding, where="post", color="C3", lw=1,
                  label="FIFO hold (×0.1)")
-    axes[1].axhline(scenario.collision_checker.safety_margin_m, color="C3", ls=":", lw=0.8)
+    axes[1].axhline(scenario.collision_checker.safety_margin_m, color="C3", ls=":", lw=0.8,
+                    label="safety margin")
     axes[1].set_xlabel("time [s]")
     axes[1].legend(fontsize=7)
-    save(fig, "sigma_collision.png", "Reduced-Q σ per joint; pre-simulator distance and holds")
+    save(fig, "sigma_collision.png", "Reduced-Q σ per joint (jounce intensity, one value per "
+         "4 Hz tick); pre-simulator distance and holds")
     return writer.figures
 
 
-def _report_text(metrics: dict, figures) -> str:
+def _report_text(metrics: dict, figures, meshcat_html: bool = False) -> str:
     commands = metrics["commands"]
     lines = [
         "# telesmooth simulate",
         "",
-        f"Scenario: arm `{metrics['scenario']['arm']}`, operator "
-        f"`{metrics['scenario']['haptic_source']}`, smoother `{metrics['scenario']['method']}`, "
+        f"Scenario: arm `{metrics['scenario']['arm']}`, operator: "
+        f"{metrics['scenario']['operator']}, smoother `{metrics['scenario']['method']}`, "
         f"on collision `{metrics['scenario']['on_collision']}`. "
         f"{metrics['duration_s']:.1f} s simulated in {metrics['wall_time_s']:.1f} s "
         f"({metrics['realtime_factor']:.1f}× real time), {metrics['num_packets']} packets.",
         "",
+        plant_text(metrics["plant"]),
+        "",
+    ]
+    if meshcat_html:
+        lines += ["A Meshcat replay of the run, viewable offline: [run.html](run.html).", ""]
+    lines += [
         "| joint | FD acc max/limit | FD acc over | FD jerk max/limit | FD jerk over | "
         "deformation mean [mrad] |",
         "|---|---|---|---|---|---|",
@@ -178,8 +207,10 @@ def _report_text(metrics: dict, figures) -> str:
     deformation = commands["position_deformation_rad"]
     for j, name in enumerate(names):
         lines.append(
-            f"| {name} | {acc['max_over_limit'][j]:.2f} | {100 * acc['fraction_over_limit'][j]:.1f} % "
-            f"| {jerk['max_over_limit'][j]:.2f} | {100 * jerk['fraction_over_limit'][j]:.1f} % "
+            f"| {name} | {limit_ratio(acc['max_over_limit'][j])} | "
+            f"{100 * acc['fraction_over_limit'][j]:.1f} % "
+            f"| {limit_ratio(jerk['max_over_limit'][j])} | "
+            f"{100 * jerk['fraction_over_limit'][j]:.1f} % "
             f"| {1000 * deformation['mean'][j]:.2f} |")
     tracking = metrics["tracking"]
     lines += [
@@ -231,5 +262,5 @@ def write_simulation_report(out_dir, scenario, *, duration_s=None, meshcat_html=
     _write_tables(out, record)
     figures = _write_figures(out, record, metrics)
     report = out / "report.md"
-    write_text(report, _report_text(metrics, figures))
+    write_text(report, _report_text(metrics, figures, meshcat_html=meshcat is not None))
     return report

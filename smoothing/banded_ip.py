@@ -60,7 +60,8 @@ _CHOLESKY_CONDITION_LIMIT = 1e12
 _STEP_FRACTION = 0.99
 _START_MULTIPLIER = 0.01
 # An iterate within this factor of the gap tolerance is accepted when the Cholesky route
-# breaks down on the next step (see ``run``).
+# breaks down on the next step, or when the iteration ends without converging after it
+# (see ``run``).
 _ACCEPTABLE_GAP_FACTOR = 10.0
 # Rows per chunk where a pass over a whole matrix would allocate large temporaries.
 _CHUNK_ROWS = 1 << 15
@@ -84,7 +85,9 @@ class BandedIpOptions:
             1e-16. The dual tolerance did not change it. Late in the iterations the normal
             equations can lose definiteness in floating point; an iterate that already meets
             10× this tolerance (and the others) is then returned instead of continuing by the
-            much slower QR route.
+            much slower QR route. It is also returned, the best such iterate, when the steps
+            after it lose ground and the iteration ends without converging (seen on
+            degenerate active sets: the dual residual grows again as the gap collapses).
         dual_tolerance: ‖∇ Lagrangian‖∞ relative to the size of its terms (round-off leaves
             ~1e-9 at 4 Hz, SPEC §2.3 notes, in the absolute gradient; this relative measure
             reaches 1e-10).
@@ -467,6 +470,7 @@ class BandedQp:
         lam_l = np.full(m, _START_MULTIPLIER)
         status, iteration = "max_iterations", 0
         measures = (math.inf, math.inf, math.inf)
+        best_acceptable = None
         for iteration in range(1, opts.max_iterations + 1):
             fy = self.f @ y
             residual_a = self.a @ y - self.c
@@ -490,6 +494,8 @@ class BandedQp:
                         iteration -= 1
                         break
                     acceptable = True
+                    if best_acceptable is None or gap < best_acceptable[-1][1]:
+                        best_acceptable = (y, s_u, s_l, lam_u, lam_l, iteration - 1, measures)
             weights = lam_u / s_u + lam_l / s_l
             # Within 10× of the gap tolerance (``acceptable``): if the normal equations break
             # down now (λ/s of the active rows ~1e15), stop here rather than finish by the QR
@@ -548,6 +554,12 @@ class BandedQp:
             s_l = s_l + alpha * step[2]
             lam_u = lam_u + alpha * step[3]
             lam_l = lam_l + alpha * step[4]
+        if status != "converged" and best_acceptable is not None:
+            # An iterate met every tolerance but the gap, which it met to 10×, and the steps
+            # after it lost ground (seen on degenerate active sets, where the dual residual
+            # grows again as the gap collapses): that iterate is the answer.
+            y, s_u, s_l, lam_u, lam_l, iteration, measures = best_acceptable
+            status = "converged"
         converged = status == "converged"
         if not converged:
             # The measures of the iterate returned (the loop's are one step older).

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from telesmooth.smoothing.model import SCALED_TRANSITION, JerkModel
+from telesmooth.smoothing.model import SCALED_TRANSITION, JerkModel, process_covariance
 from telesmooth.smoothing.validation import check_trajectory
 
 OFFLINE_REST_PRIOR_DIAG = (None, 1e-4, 1e-3, 1e-2)
@@ -47,6 +47,38 @@ def rest_prior(start_position, model: JerkModel, cov_diagonal=OFFLINE_REST_PRIOR
     cov = np.zeros((model.num_joints, 4, 4))
     cov[:, np.arange(4), np.arange(4)] = diag
     return GaussianPrior(mean=mean, cov=cov)
+
+
+START_PRIORS = ("rest", "loose")
+"""How the offline smoothers start: ``"rest"``, the robot at rest at the start pose one tick
+before the first sample (:func:`rest_start_prior`, as the online smoothers start), or
+``"loose"``, the paper's prior diag(r, 1e-4, 1e-3, 1e-2) at the first sample (:func:`rest_prior`)."""
+
+
+def rest_start_prior(start_position, model: JerkModel) -> GaussianPrior:
+    """The robot at rest at ``start_position`` one tick before the first sample.
+
+    x_{−1} = [q_start, 0, 0, 0] exactly, so the first sample's state is its prediction:
+    x_0 ~ N(Φ x_{−1}, Q(Δt, σ)) = N([q_start, 0, 0, 0], Q(Δt, σ)) per joint. This is how the
+    fixed-lag smoothers start (their rest covariance is 0 and their first step predicts with
+    Q), so every smoother then assumes the same robot. With σ = 4e-4 rad²/s⁷ and Δt = 0.25 s
+    the first sample's velocity has a standard deviation of 1.4e-4 rad/s, against 0.01 rad/s
+    in :func:`rest_prior`: a smoother given that loose prior may start already moving, which
+    the robot, at rest, receives as a jerk step.
+    """
+    q0 = np.asarray(start_position, dtype=float)
+    mean = np.zeros((model.num_joints, 4))
+    mean[:, 0] = q0
+    return GaussianPrior(mean=mean, cov=process_covariance(model.dt_s, model.sigma))
+
+
+def start_prior(kind: str, start_position, model: JerkModel) -> GaussianPrior:
+    """The prior named by ``kind`` (:data:`START_PRIORS`)."""
+    if kind == "rest":
+        return rest_start_prior(start_position, model)
+    if kind == "loose":
+        return rest_prior(start_position, model)
+    raise ValueError(f"start_prior = {kind!r} must be one of {START_PRIORS}")
 
 
 @dataclass(frozen=True, eq=False)

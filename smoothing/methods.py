@@ -11,6 +11,9 @@ method             estimate of sample k                            sent after
 ``kf-predictor``   x̂_{k|k−1}, the one-step predictor                0
 ``offline-ks``     RTS over the whole recording                    offline (replayed from t_0)
 ``offline-cks``    Offline-CKS, Drake MathematicalProgram          offline (replayed from t_0)
+``offline-hard``   closest to z within hard FD limits (not a       offline (replayed from t_0)
+                   smoother: the least deformation the limits
+                   force; smoothing.offline_hard)
 ``bmfls``          x̂_{k|k+L}, fixed-lag, constant σ_0               L Δt
 ``online-cks``     x̂_{k|k+L}, fixed-lag with reduced-Q σ_k          L Δt
 ``online-hard``    Online-CKS's x̂_{k|k+L} through the hard limiter   L Δt
@@ -20,7 +23,8 @@ method             estimate of sample k                            sent after
 
 For the fixed-lag methods the operator is taken to hold the last pose after the recording ends
 (L extra copies of the last sample), so every sample gets an estimate.
-All methods share Φ, Q(σ_0), r and the rest start at z_0.
+All methods share Φ, Q(σ_0), r and the rest start at z_0 (the offline smoothers' start prior is
+``SmoothingSettings.start_prior``).
 """
 
 from __future__ import annotations
@@ -30,10 +34,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from telesmooth.smoothing.fixed_lag import FixedLagSmoother
-from telesmooth.smoothing.kalman import kalman_filter, rest_prior, rts_smoother
+from telesmooth.smoothing.kalman import (
+    START_PRIORS,
+    kalman_filter,
+    rest_prior,
+    rts_smoother,
+    start_prior,
+)
 from telesmooth.smoothing.model import DEFAULT_LAG, DEFAULT_R, DEFAULT_SIGMA, MAX_LAG, JerkModel
 from telesmooth.smoothing.online_hard import online_hard_run
 from telesmooth.smoothing.offline import solve_offline_cks
+from telesmooth.smoothing.offline_hard import solve_offline_hard
 from telesmooth.smoothing.reduced_q import OnlineCks, ReducedQConfig
 from telesmooth.smoothing.ruckig_stream import ruckig_stream
 from telesmooth.smoothing.validation import (
@@ -43,10 +54,10 @@ from telesmooth.smoothing.validation import (
     check_trajectory,
 )
 
-METHODS = ("original", "kf", "kf-predictor", "offline-ks", "offline-cks", "bmfls", "online-cks",
-           "online-hard", "ruckig")
+METHODS = ("original", "kf", "kf-predictor", "offline-ks", "offline-cks", "offline-hard", "bmfls",
+           "online-cks", "online-hard", "ruckig")
 FIXED_LAG_METHODS = ("bmfls", "online-cks", "online-hard")
-OFFLINE_METHODS = ("offline-ks", "offline-cks")
+OFFLINE_METHODS = ("offline-ks", "offline-cks", "offline-hard")
 
 
 @dataclass(frozen=True)
@@ -62,6 +73,10 @@ class SmoothingSettings:
         lag: L [samples] for the fixed-lag methods.
         constraint: Offline-CKS mode, "state" (paper) or "trajectory" (hard FD limits) etc.
         rest_at_end: Offline-CKS ends at rest.
+        start_prior: How Offline-KS and Offline-CKS start (:data:`START_PRIORS`): "rest"
+            (default: the robot at rest at z_0 one tick before the first sample, as the
+            fixed-lag smoothers start) or "loose" (the paper's diag(r, 1e-4, 1e-3, 1e-2),
+            which lets the estimate start already moving: a jerk step at the robot).
         fixed_lag_method: "recursion" or "superstate".
         reduced_q: reduced-Q settings for Online-CKS.
         offline_tolerance: Clarabel tolerances for Offline-CKS.
@@ -79,6 +94,7 @@ class SmoothingSettings:
     lag: int = DEFAULT_LAG
     constraint: str = "state"
     rest_at_end: bool = False
+    start_prior: str = "rest"
     fixed_lag_method: str = "recursion"
     reduced_q: ReducedQConfig = field(default_factory=ReducedQConfig)
     offline_tolerance: float = 1e-12
@@ -135,6 +151,8 @@ def smooth_recording(
     """
     if method not in METHODS:
         raise ValueError(f"method = {method!r} must be one of {METHODS}")
+    if settings.start_prior not in START_PRIORS:
+        raise ValueError(f"start_prior = {settings.start_prior!r} must be one of {START_PRIORS}")
     z = check_trajectory("positions", positions, joint_names=joint_names, min_samples=2)
     num_joints = z.shape[1]
     dt_s = check_positive_scalar("dt_s", dt_s)
@@ -153,7 +171,7 @@ def smooth_recording(
         states = result.filtered_mean if method == "kf" else result.predicted_mean
         return SmoothedRecording(method, states[:, :, 0].copy(), states, 0.0)
     if method == "offline-ks":
-        states = rts_smoother(z, model, rest_prior(z[0], model)).mean
+        states = rts_smoother(z, model, start_prior(settings.start_prior, z[0], model)).mean
         return SmoothedRecording(method, states[:, :, 0].copy(), states, 0.0)
     if method == "offline-cks":
         result = solve_offline_cks(
@@ -163,12 +181,14 @@ def smooth_recording(
             max_velocity=settings.max_velocity,
             constraint=settings.constraint,
             rest_at_end=settings.rest_at_end,
+            prior=start_prior(settings.start_prior, z[0], model),
             joint_names=joint_names,
             tolerance=settings.offline_tolerance,
             solver=settings.offline_solver,
         )
         details = {
             "constraint": settings.constraint,
+            "start_prior": settings.start_prior,
             "solver": result.solver_name,
             "solution_results": list(result.solution_results),
             "solve_time_s": result.solve_time_s.tolist(),
@@ -181,6 +201,20 @@ def smooth_recording(
             )
         return SmoothedRecording(method, result.states[:, :, 0].copy(), result.states, 0.0,
                                  details=details)
+    if method == "offline-hard":
+        # The least deformation the limits allow: the samples moved only where the FD limits
+        # force it, from rest at z_0 to rest at the end (smoothing.offline_hard).
+        hard = solve_offline_hard(
+            z, dt_s, max_acceleration=settings.max_acceleration, max_jerk=settings.max_jerk,
+            max_velocity=settings.max_velocity, start_position=z[0], rest_at_end=True,
+            joint_names=joint_names)
+        if not hard.is_success:
+            raise RuntimeError(
+                f"offline-hard failed: {dict(zip(joint_names or range(num_joints), hard.status))}")
+        states = finite_difference_states(hard.positions, z[0], dt_s)
+        return SmoothedRecording(method, hard.positions.copy(), states, 0.0,
+                                 details={"status": list(hard.status),
+                                          "iterations": hard.iterations.tolist()})
     if method == "ruckig":
         states = ruckig_stream(z, dt_s, max_acceleration=settings.max_acceleration,
                                max_jerk=settings.max_jerk, max_velocity=settings.max_velocity,

@@ -156,6 +156,7 @@ class CommandInterpolator(LeafSystem):
         name: CommandInterpolator
         input_ports:
         - q_commanded
+        - command_time (optional)
         output_ports:
         - state_desired
         - command_rejected
@@ -164,6 +165,11 @@ class CommandInterpolator(LeafSystem):
 
     - ``q_commanded``: the held joint-position command (e.g. the uplink's zero-order hold),
       rad, shape (n,). Must be connected.
+    - ``command_time``: optional; the instant the held command was issued upstream (the
+      uplink's ``send_time``), s, shape (1,). A discrete update cannot see another system's
+      update of the same instant (Drake runs them simultaneously), so a command sent at t
+      is seen by the poll after t; with this input the ramp starts at t all the same, as if
+      the poll had run at t (a poll sees its value only together with the command).
     - ``state_desired``: [q_d; v_d], desired motor positions (rad) and velocities (rad/s),
       shape (2n,), in joint order (map it to actuator order before the plant's
       desired-state input). No direct feedthrough: computed from the state and the
@@ -186,21 +192,25 @@ class CommandInterpolator(LeafSystem):
       target q₁ is kept, i.e. the ramp in progress (already validated) finishes and the
       robot then holds; flag ← 1, count += 1, and a warning naming the joint and value is
       logged (see :func:`command_violation`).
-    - otherwise a new command: ``"linear"``: q₀ ← q_d(t_k), q₁ ← u, t₀ ← t_k;
-      ``"zoh"``: q₀ ← u, q₁ ← u, t₀ ← t_k; flag ← 0.
+    - otherwise a new command, starting at s = ``command_time`` if that is connected,
+      finite and within [t₀, t_k] (the command's own instant), else s = t_k:
+      ``"linear"``: q₀ ← q_d(s) (on the ramp in progress), q₁ ← u, t₀ ← s;
+      ``"zoh"``: q₀ ← u, q₁ ← u, t₀ ← s; flag ← 0. Starting at s < t_k moves q_d at t_k by
+      (t_k − s)·(v_new − v_old), one poll period's worth of the velocity change.
 
     Output at any time t (:func:`ramp_desired_state`), T = ``ramp_duration_s``,
-    s = clip((t − t₀)/T, 0, 1):
+    s = clip((t + lead − t₀)/T, 0, 1) (lead = the constructor's ``lead_s``, 0 by default):
 
         q_d(t) = q₀ + s·(q₁ − q₀)
-        v_d(t) = (q₁ − q₀)/T  for t₀ ≤ t < t₀ + T,  else 0
+        v_d(t) = (q₁ − q₀)/T  for t₀ ≤ t + lead < t₀ + T,  else 0
 
-    so a new command received at t₀ is reached at t₀ + T; a command arriving mid-ramp
+    so a new command issued at t₀ is reached at t₀ + T; a command arriving mid-ramp
     starts a new ramp from the current q_d (the position is continuous, the velocity
     jumps). With a steady 4 Hz stream and T = 0.25 s, q_d is the piecewise-linear
-    interpolation of the commands delayed by one uplink period (plus at most one poll
-    period: a command that changes at t is seen at the first poll after t, or at t itself
-    if the upstream value has already changed when the poll runs).
+    interpolation of the commands delayed by one uplink period (exactly, with
+    ``command_time``; else plus at most one poll period: a command that changes at t is
+    seen at the first poll after t, or at t itself if the upstream value has already
+    changed when the poll runs).
 
     Before the first command (and at t = 0): q₀ = q₁ = ``initial_position_rad``, t₀ = 0,
     so the output is [initial_position_rad; 0] and the robot holds. A held input equal to
@@ -217,6 +227,7 @@ class CommandInterpolator(LeafSystem):
         lower_rad,
         upper_rad,
         initial_position_rad=None,
+        lead_s: float = 0.0,
     ):
         """Validates the joint data and declares ports, state and the poll event.
 
@@ -227,6 +238,12 @@ class CommandInterpolator(LeafSystem):
                 lower < upper.
             initial_position_rad: Position held before the first command, rad; shape (n,);
                 within the limits. Default zeros.
+            lead_s: The set-point is output this far ahead, s (≥ 0, default 0): the output at
+                t is the ramp at t + lead_s. A discrete plant reads its servo's desired state
+                at the start of each step and reaches it, with an implicit PD, at the end:
+                :class:`~telesmooth.systems.flexible_arm.FlexibleJointArm` sets its plant
+                step here, so the motors track the ramp itself instead of lagging it by one
+                step (which would make the tracking error grow with the plant step).
 
         Raises:
             ValueError: naming the field, joint and value, if any argument is invalid.
@@ -257,12 +274,17 @@ class CommandInterpolator(LeafSystem):
                     f"is outside the joint limits [{float(lower[index])!r}, "
                     f"{float(upper[index])!r}]"
                 )
+        if isinstance(lead_s, bool) or not isinstance(lead_s, (int, float)) \
+                or not math.isfinite(lead_s) or lead_s < 0.0:
+            raise ValueError(f"lead_s = {lead_s!r} must be finite and >= 0")
         self._config = config
         self._joint_names = names
         self._lower = lower
         self._upper = upper
+        self._lead_s = float(lead_s)
 
         self._q_commanded_input = self.DeclareVectorInputPort("q_commanded", n)
+        self._command_time_input = self.DeclareVectorInputPort("command_time", 1)
 
         self._ramp_start_state = self.DeclareDiscreteState(q0.copy())
         self._ramp_target_state = self.DeclareDiscreteState(q0.copy())
@@ -297,6 +319,9 @@ class CommandInterpolator(LeafSystem):
 
     def get_q_commanded_input_port(self):
         return self._q_commanded_input
+
+    def get_command_time_input_port(self):
+        return self._command_time_input
 
     def get_state_desired_output_port(self):
         return self._state_desired_output
@@ -343,7 +368,8 @@ class CommandInterpolator(LeafSystem):
         target = context.get_discrete_state(self._ramp_target_state).get_value()
         start_time = context.get_discrete_state(self._ramp_start_time_state).get_value()[0]
         return ramp_desired_state(
-            start, target, start_time, self._config.ramp_duration_s, context.get_time())
+            start, target, start_time, self._config.ramp_duration_s,
+            context.get_time() + self._lead_s)
 
     def _calc_state_desired(self, context, output) -> None:
         position, velocity = self._desired(context)
@@ -374,12 +400,22 @@ class CommandInterpolator(LeafSystem):
             discrete_state.get_mutable_vector(self._last_rejected_state).SetFromVector(
                 command)
             return
+        now = context.get_time()
+        previous_start_time = context.get_discrete_state(
+            self._ramp_start_time_state).get_value()[0]
+        start_time = now
+        if self._command_time_input.HasValue(context):
+            issued = float(self._command_time_input.Eval(context)[0])
+            if math.isfinite(issued) and previous_start_time <= issued <= now:
+                start_time = issued
         if self._config.interpolation == "linear":
-            start, _ = self._desired(context)
+            start, _ = ramp_desired_state(
+                context.get_discrete_state(self._ramp_start_state).get_value(), target,
+                previous_start_time, self._config.ramp_duration_s, start_time)
         else:
             start = command
         discrete_state.get_mutable_vector(self._ramp_start_state).SetFromVector(start)
         discrete_state.get_mutable_vector(self._ramp_target_state).SetFromVector(command)
         discrete_state.get_mutable_vector(self._ramp_start_time_state).SetFromVector(
-            [context.get_time()])
+            [start_time])
         discrete_state.get_mutable_vector(self._rejection_state).SetFromVector([0.0, count])

@@ -28,7 +28,15 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import MatrixGain
 
-from telesmooth.arms.description import AIR_BEARING_ARM_3DOF, SPACE_ARM_6DOF, ArmDescription
+from telesmooth.arms.description import (
+    AIR_BEARING_ARM_3DOF,
+    DRIVE_FIELDS,
+    PLANT_PRESETS,
+    SPACE_ARM_6DOF,
+    ArmDescription,
+    drive_preset,
+    with_drive,
+)
 from telesmooth.arms.drake_models import add_arm
 from telesmooth.systems.command_interpolator import (
     CommandInterpolator,
@@ -39,6 +47,7 @@ from telesmooth.systems.laser_tracker import LaserTracker, LaserTrackerConfig
 __all__ = [
     "ARM_DESCRIPTIONS",
     "DISCRETE_CONTACT_APPROXIMATIONS",
+    "DriveConfig",
     "FlexibleArmConfig",
     "FlexibleJointArm",
     "desired_state_permutation",
@@ -52,6 +61,58 @@ ARM_DESCRIPTIONS: dict[str, ArmDescription] = {
 
 DISCRETE_CONTACT_APPROXIMATIONS = ("lagged", "sap", "similar", "tamsi")
 """The values of ``MultibodyPlantConfig.discrete_contact_approximation`` that we accept."""
+
+
+@dataclasses.dataclass(frozen=True)
+class DriveConfig:
+    """The drive-train of every joint: what makes the onboard arm flexible.
+
+    Each joint is a motor (rotor inertia J_r behind a gear ratio N; the plant's PD servo with
+    gains kp, kd) driving its link through a spring k with a damper c (see
+    :mod:`telesmooth.arms.description`). ``preset`` picks a named set of these numbers
+    (:data:`~telesmooth.arms.description.PLANT_PRESETS`); every other field, if given,
+    replaces the preset's value. A per-joint field takes one number for all joints, a list
+    (one per joint, base to tip) or a mapping joint name → number naming every joint.
+
+    Attributes:
+        preset: ``"lab"`` (default: the laboratory arm) or ``"lightweight"`` (10× softer
+            springs, lowest mode about 1 Hz, damping ratio about 0.02).
+        stiffness_n_m_per_rad: Link-side spring stiffness k, N·m/rad (> 0).
+        damping_n_m_s_per_rad: Link-side damping c, N·m·s/rad (> 0).
+        rotor_inertia_kg_m2: Rotor inertia J_r before the gear, kg·m² (> 0); the motor
+            coordinate sees N²·J_r.
+        motor_kp_n_m_per_rad: Servo proportional gain kp, N·m/rad (> 0).
+        motor_kd_n_m_s_per_rad: Servo derivative gain kd, N·m·s/rad (> 0).
+    """
+
+    preset: str = "lab"
+    stiffness_n_m_per_rad: object = None
+    damping_n_m_s_per_rad: object = None
+    rotor_inertia_kg_m2: object = None
+    motor_kp_n_m_per_rad: object = None
+    motor_kd_n_m_s_per_rad: object = None
+
+    def __post_init__(self) -> None:
+        if self.preset not in PLANT_PRESETS:
+            raise ValueError(f"preset = {self.preset!r} must be one of {PLANT_PRESETS}")
+
+    def apply(self, arm: ArmDescription) -> ArmDescription:
+        """``arm`` with this drive: the preset, then the given fields.
+
+        Raises:
+            ValueError: naming the field (``drive.<field>``), the joint and the value, if a
+                value is not a positive finite number or the joint count does not match.
+        """
+        from telesmooth.smoothing.validation import as_per_joint
+
+        arm = drive_preset(arm, self.preset)
+        values = {}
+        for field in DRIVE_FIELDS:
+            value = getattr(self, field)
+            if value is not None:
+                values[field] = tuple(as_per_joint(f"drive.{field}", value, arm.num_joints,
+                                                   arm.joint_names))
+        return with_drive(arm, **values) if values else arm
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,6 +133,8 @@ class FlexibleArmConfig:
             plane.
         interpolator: Settings of the command interpolator (motor set-point).
         tracker: Settings of the laser tracker.
+        drive: The joints' springs, dampers, rotor inertias and servo gains (a preset and
+            overrides); the plant's vibration modes follow from them.
         initial_position_rad: Joint angles at t = 0 (motors and links, no deflection), and
             the position held before the first command, rad; one per joint of ``arm``,
             within its limits. ``None`` means all zeros.
@@ -84,6 +147,7 @@ class FlexibleArmConfig:
     interpolator: CommandInterpolatorConfig = dataclasses.field(
         default_factory=CommandInterpolatorConfig)
     tracker: LaserTrackerConfig = dataclasses.field(default_factory=LaserTrackerConfig)
+    drive: DriveConfig = dataclasses.field(default_factory=DriveConfig)
     initial_position_rad: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
@@ -114,6 +178,9 @@ class FlexibleArmConfig:
         if not isinstance(self.tracker, LaserTrackerConfig):
             raise ValueError(
                 f"FlexibleArmConfig.tracker = {self.tracker!r} must be a LaserTrackerConfig")
+        if not isinstance(self.drive, DriveConfig):
+            raise ValueError(
+                f"FlexibleArmConfig.drive = {self.drive!r} must be a DriveConfig")
         if self.initial_position_rad is not None:
             arm = ARM_DESCRIPTIONS[self.arm]
             q0 = _float_tuple("FlexibleArmConfig.initial_position_rad",
@@ -132,8 +199,12 @@ class FlexibleArmConfig:
 
     @property
     def arm_description(self) -> ArmDescription:
-        """The :class:`ArmDescription` named by :attr:`arm`."""
-        return ARM_DESCRIPTIONS[self.arm]
+        """The :class:`ArmDescription` named by :attr:`arm`, with :attr:`drive` applied.
+
+        Raises:
+            ValueError: if a drive value does not fit the arm (see :meth:`DriveConfig.apply`).
+        """
+        return self.drive.apply(ARM_DESCRIPTIONS[self.arm])
 
 
 def _float_tuple(field: str, values) -> tuple[float, ...]:
@@ -187,11 +258,13 @@ class FlexibleJointArm(Diagram):
         name: FlexibleJointArm
         input_ports:
         - q_commanded
+        - command_time (optional)
         output_ports:
         - position_measured
         - q_link
         - q_motor
         - tracker_sample_time
+        - tracker_measurement
         - command_rejected
         - state_desired
         - plant_state
@@ -203,15 +276,23 @@ class FlexibleJointArm(Diagram):
     - ``q_commanded``: the held joint-position command (4 Hz uplink, zero-order hold), rad,
       (n,). Must be connected or fixed. The upstream hold must start at the robot's pose
       (see "before the first command").
+    - ``command_time``: optional; when the held command was issued (e.g. the uplink's
+      ``send_time``), s, (1,). Connected, a new command's ramp starts at that instant
+      instead of at the poll that sees it (see :class:`CommandInterpolator`).
     - ``position_measured``: laser-tracker end-effector position p_WT (origin of the
       ``tool`` frame in world), m, (3,), sampled every ``tracker.period_s`` (100 Hz) and
       held; for the air-bearing arm it moves in the world x-y plane (z = 0).
     - ``q_link``: link-side joint angles (motor + deflection), rad, (n,), same samples.
     - ``q_motor``: motor-side joint angles, rad, (n,), same samples.
     - ``tracker_sample_time``: time of the held tracker sample, s, (1,).
+    - ``tracker_measurement``: [t_k, p_WT, q_link, q_motor], the held sample with the time
+      it was taken, (4 + 2n,): the port to log (see :class:`LaserTracker`).
     - ``command_rejected``: 1.0 while the last received command was rejected (not finite,
       or outside the joint limits) and the robot holds its previous target, else 0.0, (1,).
-    - ``state_desired``: the servo set-point [q_d; v_d], rad and rad/s, (2n,), joint order.
+    - ``state_desired``: the servo set-point [q_d; v_d], rad and rad/s, (2n,), joint order;
+      at time t it is the ramp at t + h (h = ``time_step_s``): the discrete plant reads it at
+      the start of a step and its implicit PD reaches it at the end, so the motors track
+      the ramp itself, not the ramp one step late.
     - ``plant_state``: the full plant state [q; v], (4n,): per joint (motor, deflection)
       positions in the plant's order, then velocities (see ``plant.GetStateNames()``).
     - ``query_object``: SceneGraph's query output, for visualizers.
@@ -223,8 +304,9 @@ class FlexibleJointArm(Diagram):
     Link side: τ_spring,i = −k_i·δ_i − c_i·δ̇_i, with δ_i = the deflection and
     q_link,i = q_motor,i + δ_i.
 
-    The set-point (see :class:`CommandInterpolator`): a new command u received at the poll
-    t₀ (1 ms polls) starts a ramp from the current set-point q₀ = q_d(t₀):
+    The set-point (see :class:`CommandInterpolator`): a new command u starts a ramp at t₀,
+    the command's ``command_time`` if connected, else the poll that sees it (1 ms polls),
+    from the set-point q₀ = q_d(t₀):
 
         "linear": q_d(t) = q₀ + clip((t − t₀)/T, 0, 1)·(u − q₀),
                   v_d(t) = (u − q₀)/T on [t₀, t₀ + T), else 0     (T = 0.25 s)
@@ -266,10 +348,15 @@ class FlexibleJointArm(Diagram):
         builder = DiagramBuilder()
 
         # Plant: the flexible model (motor joint + spring/damper joint per joint).
+        # Output ports computed from the state (not "sampled"): with sampled output ports, a
+        # discrete update at t_n (the tracker's sample) reads the plant's state after its
+        # step at t_n, i.e. the state of t_n + h, while loggers and the state itself are of
+        # t_n. Unsampled, every reader at t sees the state of t.
         plant, scene_graph = AddMultibodyPlant(
             MultibodyPlantConfig(
                 time_step=config.time_step_s,
-                discrete_contact_approximation=config.discrete_contact_approximation),
+                discrete_contact_approximation=config.discrete_contact_approximation,
+                use_sampled_output_ports=False),
             builder)
         instance = add_arm(plant, arm, flexible=True)
         plant.mutable_gravity_field().set_gravity_vector(np.array(config.gravity_m_per_s2))
@@ -281,7 +368,8 @@ class FlexibleJointArm(Diagram):
         # Motor set-point: held 4 Hz commands → [q_d; v_d], unsafe commands rejected.
         interpolator = builder.AddNamedSystem("command_interpolator", CommandInterpolator(
             config.interpolator, joint_names=arm.joint_names, lower_rad=arm.joint_lower_rad,
-            upper_rad=arm.joint_upper_rad, initial_position_rad=q0))
+            upper_rad=arm.joint_upper_rad, initial_position_rad=q0,
+            lead_s=config.time_step_s))
         # Joint order → actuator order for the plant's PD (desired-state input).
         to_actuator_order = builder.AddNamedSystem(
             "desired_state_to_actuator_order",
@@ -298,10 +386,12 @@ class FlexibleJointArm(Diagram):
         builder.Connect(plant.get_state_output_port(), tracker.get_plant_state_input_port())
 
         builder.ExportInput(interpolator.get_q_commanded_input_port(), "q_commanded")
+        builder.ExportInput(interpolator.get_command_time_input_port(), "command_time")
         builder.ExportOutput(tracker.get_position_measured_output_port(), "position_measured")
         builder.ExportOutput(tracker.get_q_link_output_port(), "q_link")
         builder.ExportOutput(tracker.get_q_motor_output_port(), "q_motor")
         builder.ExportOutput(tracker.get_sample_time_output_port(), "tracker_sample_time")
+        builder.ExportOutput(tracker.get_measurement_output_port(), "tracker_measurement")
         builder.ExportOutput(interpolator.get_command_rejected_output_port(),
                              "command_rejected")
         builder.ExportOutput(interpolator.get_state_desired_output_port(), "state_desired")

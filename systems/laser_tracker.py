@@ -18,7 +18,7 @@ from pydrake.systems.framework import LeafSystem
 
 from telesmooth.systems.timing import check_period
 
-__all__ = ["LaserTracker", "LaserTrackerConfig"]
+__all__ = ["LaserTracker", "LaserTrackerConfig", "TrackerRecord", "tracker_record"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,6 +49,52 @@ class LaserTrackerConfig:
             raise ValueError(f"LaserTrackerConfig.seed = {self.seed!r} must be an integer >= 0")
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class TrackerRecord:
+    """The laser tracker's samples, each at the instant it was measured (time-major).
+
+    Attributes:
+        t_s: t_k, when each sample was taken, s, (T,), strictly increasing.
+        tool_position_m: p_WT at t_k, m, (T, 3).
+        q_link: Link-side joint angles at t_k, rad, (T, n).
+        q_motor: Motor-side joint angles at t_k, rad, (T, n).
+    """
+
+    t_s: np.ndarray
+    tool_position_m: np.ndarray
+    q_link: np.ndarray
+    q_motor: np.ndarray
+
+
+def tracker_record(measurements) -> TrackerRecord:
+    """One row per tracker sample from logged ``measurement`` vectors.
+
+    Args:
+        measurements: Rows [t_k, p_WT (3), q_link (n), q_motor (n)] as logged, (R, 4 + 2n),
+            in logging order. A logger shows a held sample once per publish, and the sample
+            taken at initialization and the periodic one at t = 0 share t_k = 0: every
+            sample time is kept once (its first row).
+
+    Returns:
+        The samples by their own time t_k (not the loggers' time stamps).
+
+    Raises:
+        ValueError: if the rows have no room for n ≥ 1 joints or the sample times go back.
+    """
+    rows = np.atleast_2d(np.asarray(measurements, dtype=float))
+    width = rows.shape[1]
+    if width < 6 or (width - 4) % 2:
+        raise ValueError(f"tracker measurements have {width} columns; expected 4 + 2n, n >= 1")
+    n = (width - 4) // 2
+    t_s = rows[:, 0]
+    if np.any(np.diff(t_s) < 0.0):
+        raise ValueError("tracker sample times must not decrease")
+    first = np.r_[True, np.diff(t_s) > 0.0] if len(t_s) else np.zeros(0, dtype=bool)
+    rows = rows[first]
+    return TrackerRecord(t_s=rows[:, 0].copy(), tool_position_m=rows[:, 1:4].copy(),
+                         q_link=rows[:, 4:4 + n].copy(), q_motor=rows[:, 4 + n:].copy())
+
+
 class LaserTracker(LeafSystem):
     r"""Samples a flexible-joint plant's state: end-effector position and joint angles.
 
@@ -62,6 +108,7 @@ class LaserTracker(LeafSystem):
         - q_link
         - q_motor
         - sample_time
+        - measurement
 
     Ports (n = number of joints, joint order = ``joint_names``):
 
@@ -73,10 +120,16 @@ class LaserTracker(LeafSystem):
     - ``q_link``: link-side joint angles q_link,i = q_motor,i + q_deflection,i, rad, (n,).
     - ``q_motor``: motor-side joint angles, rad, (n,).
     - ``sample_time``: t_k, the time at which the held sample was taken, s, (1,).
+    - ``measurement``: the whole held sample with its time, [t_k, p_WT (3), q_link (n),
+      q_motor (n)], (4 + 2n,). **Log this port**, not the others: a logger sampling at t
+      runs before the tracker's own update at t (Drake publishes before the discrete
+      update of the same instant), so the entry a 100 Hz logger stamps t holds the sample
+      taken at t − period; only t_k tells when the sample was measured.
+      :func:`tracker_record` turns such a log into one row per sample, by t_k.
 
     State (discrete, updated at t_k = k·period_s, offset 0, and once at initialization):
-    the outputs themselves, [p_WT (3), q_link (n), q_motor (n), t_k (1)]; the outputs are
-    those state values (zero-order hold, no feedthrough). Sample k's noise is
+    the ``measurement`` vector; every output is a part of it (zero-order hold, no
+    feedthrough). Sample k's noise is
     σ·N(0, I₃) drawn from ``default_rng([seed, k])``, k = round(t_k/period_s).
 
     Before the first sample (a context that was never initialized by a Simulator) the
@@ -141,21 +194,29 @@ class LaserTracker(LeafSystem):
         self._plant_state_input = self.DeclareVectorInputPort(
             "plant_state", plant.num_multibody_states())
 
+        # One state vector per sample, [t_k, p_WT (3), q_link (n), q_motor (n)]: whatever
+        # reads or logs it gets the instant the sample was taken with the sample itself.
+        n = len(names)
+        self._slices = {"sample_time": slice(0, 1), "position_measured": slice(1, 4),
+                        "q_link": slice(4, 4 + n), "q_motor": slice(4 + n, 4 + 2 * n)}
         default_sample = self._sample(
             plant.GetPositionsAndVelocities(self._plant_context), 0.0)
-        self._position_state = self.DeclareDiscreteState(default_sample[0])
-        self._q_link_state = self.DeclareDiscreteState(default_sample[1])
-        self._q_motor_state = self.DeclareDiscreteState(default_sample[2])
-        self._sample_time_state = self.DeclareDiscreteState(np.zeros(1))
+        self._measurement_state = self.DeclareDiscreteState(default_sample)
         self.DeclareInitializationDiscreteUpdateEvent(self._update_sample)
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update_sample)
 
-        self._position_output = self.DeclareStateOutputPort(
-            "position_measured", self._position_state)
-        self._q_link_output = self.DeclareStateOutputPort("q_link", self._q_link_state)
-        self._q_motor_output = self.DeclareStateOutputPort("q_motor", self._q_motor_state)
-        self._sample_time_output = self.DeclareStateOutputPort(
-            "sample_time", self._sample_time_state)
+        self._measurement_output = self.DeclareStateOutputPort(
+            "measurement", self._measurement_state)
+        ports = {name: self.DeclareVectorOutputPort(
+                     name, part.stop - part.start, self._slice_of_state(part),
+                     prerequisites_of_calc={self.xd_ticket()})
+                 for name, part in self._slices.items() if name != "sample_time"}
+        self._position_output = ports["position_measured"]
+        self._q_link_output = ports["q_link"]
+        self._q_motor_output = ports["q_motor"]
+        self._sample_time_output = self.DeclareVectorOutputPort(
+            "sample_time", 1, self._slice_of_state(self._slices["sample_time"]),
+            prerequisites_of_calc={self.xd_ticket()})
 
     # -- accessors ------------------------------------------------------------------------
 
@@ -182,6 +243,9 @@ class LaserTracker(LeafSystem):
     def get_sample_time_output_port(self):
         return self._sample_time_output
 
+    def get_measurement_output_port(self):
+        return self._measurement_output
+
     def Sample(self, context) -> None:
         """Takes a sample of ``plant_state`` now, as the periodic event would, into ``context``.
 
@@ -191,8 +255,14 @@ class LaserTracker(LeafSystem):
 
     # -- callbacks ------------------------------------------------------------------------
 
-    def _sample(self, plant_state, time_s):
-        """(p_WT (3,), q_link (n,), q_motor (n,)) of a plant state at ``time_s``."""
+    def _slice_of_state(self, part: slice):
+        def calc(context, output):
+            output.SetFromVector(
+                context.get_discrete_state(self._measurement_state).get_value()[part])
+        return calc
+
+    def _sample(self, plant_state, time_s) -> np.ndarray:
+        """[t_k, p_WT (3), q_link (n), q_motor (n)] of a plant state sampled at ``time_s``."""
         positions = np.asarray(plant_state)[: self._num_positions]
         q_motor = positions[self._motor_index]
         q_link = q_motor + positions[self._deflection_index]
@@ -204,13 +274,8 @@ class LaserTracker(LeafSystem):
             k = int(round(time_s / self._config.period_s))
             rng = np.random.default_rng([self._config.seed, k])
             position = position + self._config.noise_m * rng.standard_normal(3)
-        return position, q_link, q_motor
+        return np.concatenate([[time_s], position, q_link, q_motor])
 
     def _update_sample(self, context, discrete_state) -> None:
-        position, q_link, q_motor = self._sample(
-            self._plant_state_input.Eval(context), context.get_time())
-        discrete_state.get_mutable_vector(self._position_state).SetFromVector(position)
-        discrete_state.get_mutable_vector(self._q_link_state).SetFromVector(q_link)
-        discrete_state.get_mutable_vector(self._q_motor_state).SetFromVector(q_motor)
-        discrete_state.get_mutable_vector(self._sample_time_state).SetFromVector(
-            [context.get_time()])
+        discrete_state.get_mutable_vector(self._measurement_state).SetFromVector(self._sample(
+            self._plant_state_input.Eval(context), context.get_time()))

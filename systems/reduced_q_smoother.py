@@ -16,6 +16,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
+from telesmooth.smoothing.kalman import START_PRIORS
 from telesmooth.smoothing.model import (
     DEFAULT_LAG,
     DEFAULT_R,
@@ -47,12 +48,17 @@ class ReducedQSmootherConfig:
             commands never exceed the limits, which must then be finite).
         period_s: Δt, the uplink period, s.
         lag: L, samples of fixed lag (= the FIFO length); 3 for 0.75 s at 4 Hz.
-        sigma: σ_0, jerk-noise intensity per joint (scalar or per joint), rad²/s⁵.
+        sigma: σ_0, intensity of the white jounce noise (the model's process noise) per
+            joint (scalar or per joint), rad²/s⁷.
         r: Measurement noise variance of the hand, rad².
         max_acceleration_rad_per_s2: a_max per joint (scalar or per joint); online-cks only.
         max_jerk_rad_per_s3: j_max per joint; online-cks only.
         reduced_q: The σ adaptation settings (variant A/B1/B2, step rule, trigger, σ_min).
         fixed_lag_method: ``"recursion"`` (exact O(L) update, default) or ``"superstate"``.
+        start_prior: How the offline smoothers that ``compare``, ``experiment`` and the
+            offline mode run on the same settings start: ``"rest"`` (default: the robot at
+            rest at its start pose one tick before the first sample, as this smoother
+            starts) or ``"loose"`` (the paper's prior, which lets the estimate start moving).
     """
 
     method: str = "online-cks"
@@ -64,8 +70,11 @@ class ReducedQSmootherConfig:
     max_jerk_rad_per_s3: float | tuple = 0.1
     reduced_q: ReducedQConfig = dataclasses.field(default_factory=ReducedQConfig)
     fixed_lag_method: str = "recursion"
+    start_prior: str = "rest"
 
     def __post_init__(self) -> None:
+        if self.start_prior not in START_PRIORS:
+            raise ValueError(f"start_prior = {self.start_prior!r} must be one of {START_PRIORS}")
         if self.method not in ONLINE_SMOOTHER_METHODS:
             raise ValueError(
                 f"ReducedQSmootherConfig.method = {self.method!r} must be one of "

@@ -93,7 +93,7 @@ def test_flexible_model_has_motor_and_spring_per_joint(arm):
         assert actuator.default_rotor_inertia() == pytest.approx(description.rotor_inertia_kg_m2)
         assert actuator.default_gear_ratio() == pytest.approx(description.gear_ratio)
         gains = actuator.get_controller_gains()
-        assert (gains.p, gains.d) == pytest.approx((description.motor_kp, description.motor_kd))
+        assert (gains.p, gains.d) == pytest.approx((description.motor_kp_n_m_per_rad, description.motor_kd_n_m_s_per_rad))
         assert actuator.effort_limit() == pytest.approx(description.max_effort_n_m)
         spring = springs[f"{description.name}_deflection"]
         assert spring.default_stiffness() == pytest.approx(description.stiffness_n_m_per_rad)

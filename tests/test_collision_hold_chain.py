@@ -40,6 +40,7 @@ from telesmooth.systems.collision_stop import (
     SAME_SIDE_TOLERANCE_RAD,
     STOP_OUTCOMES,
 )
+from telesmooth.systems.laser_tracker import tracker_record
 
 PROBE = """{workspace: {obstacles: [
     {name: fixture, center_m: [0.75, 0.55, 0.0], size_m: [0.3, 0.1, 0.2]},
@@ -162,7 +163,7 @@ def _run_stop(scenario):
     return StopRun(
         q_sent=states[:, :n],
         holding=handles.logs["holding"].FindLog(context).data()[0].copy(),
-        q_link=handles.logs["q_link"].FindLog(context).data().T.copy(),
+        q_link=tracker_record(handles.logs["tracker"].FindLog(context).data().T).q_link,
         braking_distance=fifo.get_braking_distance_output_port().Eval(fifo_context).copy(),
         stop_status=STOP_OUTCOMES[int(fifo.get_stop_status_output_port().Eval(fifo_context)[0])])
 

@@ -96,9 +96,11 @@ def test_command_violation_names_joint_and_value():
 
 def test_port_contract_and_output_before_first_command():
     dut = make_dut()
-    assert dut.num_input_ports() == 1 and dut.num_output_ports() == 2
+    assert dut.num_input_ports() == 2 and dut.num_output_ports() == 2
     assert dut.get_input_port(0).get_name() == "q_commanded"
     assert dut.get_input_port(0).size() == 2
+    assert dut.get_input_port(1).get_name() == "command_time"   # optional
+    assert dut.get_input_port(1).size() == 1
     assert [dut.get_output_port(i).get_name() for i in range(2)] == [
         "state_desired", "command_rejected"]
     assert dut.get_state_desired_output_port().size() == 4
@@ -158,6 +160,54 @@ def test_command_mid_ramp_starts_new_ramp_from_current_set_point():
     q, v = harness.desired_at(t1 + RAMP + 0.0005)
     np.testing.assert_array_equal(q, b)
     np.testing.assert_array_equal(v, [0.0, 0.0])
+
+
+@pytest.mark.parametrize("interpolation", ["linear", "zoh"])
+def test_a_command_time_places_the_ramp_at_the_instant_the_command_was_issued(interpolation):
+    """A command held from 0.1005 s and stamped 0.1005 s is seen by the poll at 0.101 s, but
+    its ramp starts at 0.1005 s (closed form), so it reaches the command at 0.1005 + T; the
+    second command's ramp starts on the first one at its own stamp, 0.2005 s."""
+    harness = Harness(make_dut(interpolation))
+    stamp = harness.dut.get_command_time_input_port()
+    a, b = np.array([0.6, 0.8]), np.array([-0.4, 1.2])
+    harness.hold_from(0.1005, a)
+    stamp.FixValue(harness.context, [0.1005])
+    q, _ = harness.desired_at(0.1009)      # not polled yet: still holding
+    np.testing.assert_array_equal(q, Q0)
+    harness.hold_from(0.2005, b)
+    stamp.FixValue(harness.context, [0.2005])
+    start, target, start_time = harness.dut.get_ramp(harness.context)
+    assert start_time == 0.1005 and np.array_equal(target, a)
+    if interpolation == "linear":
+        np.testing.assert_array_equal(start, Q0)
+        q1 = Q0 + 0.1 / RAMP * (a - Q0)    # the set-point at b's stamp, on a's ramp
+        for time_s in (0.2013, 0.3503):
+            q, v = harness.desired_at(time_s)
+            np.testing.assert_allclose(q, q1 + (time_s - 0.2005) / RAMP * (b - q1),
+                                       atol=1e-12, rtol=0)
+            np.testing.assert_allclose(v, (b - q1) / RAMP, atol=1e-12, rtol=0)
+        q, v = harness.desired_at(0.2005 + RAMP)   # reached at exactly stamp + T
+        np.testing.assert_array_equal(q, b)
+        np.testing.assert_array_equal(v, [0.0, 0.0])
+    else:
+        q, v = harness.desired_at(0.2013)
+        np.testing.assert_array_equal(q, b)
+        np.testing.assert_array_equal(v, [0.0, 0.0])
+    assert harness.dut.get_ramp(harness.context)[2] == 0.2005
+
+
+@pytest.mark.parametrize("stamp_s", [np.nan, 0.5, 0.05])
+def test_a_command_time_outside_the_last_ramp_start_and_now_is_ignored(stamp_s):
+    """A stamp that is not finite, in the future (0.5 s at the poll of 0.101 s), or before
+    the ramp in progress began (0.05 s, before a ramp started at 0.0605 s) cannot move the
+    ramp: it starts at the poll, as without the input."""
+    harness = Harness(make_dut("linear"))
+    a, b = np.array([0.6, 0.8]), np.array([-0.4, 1.2])
+    harness.hold_from(0.0605, b)
+    harness.hold_from(0.1005, a)
+    harness.dut.get_command_time_input_port().FixValue(harness.context, [stamp_s])
+    harness.desired_at(0.1013)
+    assert harness.dut.get_ramp(harness.context)[2] == pytest.approx(0.101, abs=1e-12)
 
 
 def test_set_point_is_continuous_between_and_across_polls():

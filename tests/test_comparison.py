@@ -152,22 +152,33 @@ def test_bad_methods_and_live_operator_are_refused(scenario):
 def test_cli_writes_the_report(tmp_path, capsys):
     out = tmp_path / "compare"
     code = main(["compare", "--scenario-name", "OneOfEverything", "--methods",
-                 "bmfls,online-cks", "--out", str(out)])
+                 "bmfls,online-cks,offline-hard", "--out", str(out)])
     assert code == 0
     assert f"report: {out / 'report.md'}" in capsys.readouterr().out
     for name in ("report.md", "table.md", "comparison.json", "packets.csv",
-                 "acceleration_jerk.png", "end_effector.png", "response_error.png",
-                 "summary.png"):
+                 "acceleration_jerk.png", "end_effector.png", "error_along_path.png",
+                 "response_error.png", "summary.png"):
         assert (out / name).is_file(), name
     data = json.loads((out / "comparison.json").read_text())
-    assert [row["method"] for row in data["table"]] == ["original", "bmfls", "online-cks"]
+    assert [row["method"] for row in data["table"]] == ["original", "bmfls", "online-cks",
+                                                        "offline-hard"]
     table = (out / "table.md").read_text().splitlines()
-    assert len(table) == 2 + 3 and table[2].startswith("| original | 0.00 |")
+    assert len(table) == 2 + 4 and table[2].startswith("| original | 0.00 |")
+    # Every method's E_def beside offline-hard's, the least deformation the limits allow.
+    # This synthetic operator keeps the limits, so offline-hard sends its samples unchanged
+    # and there is no ratio to give.
+    assert table[0].rstrip().endswith("| E_def / offline-hard |")
+    rows = {row["method"]: row for row in data["table"]}
+    assert rows["offline-hard"]["cartesian_deformation_mean_m"] == 0.0
+    assert table[4].rstrip().endswith("| n/a (offline-hard deforms nothing) |")
+    # offline-hard keeps the limits: no ratio over 1 is flagged on its row.
+    assert "!" not in table[5]
+    assert data["plant"]["modes"]["natural_frequency_hz"][0] > 0
     with open(out / "packets.csv", newline="") as handle:
         rows = list(csv.reader(handle))
     joints = data["scenario"]["joint_names"]
-    assert rows[0] == ["t"] + [f"{m}:{j}" for m in ("original", "bmfls", "online-cks")
-                               for j in joints]
+    assert rows[0] == ["t"] + [f"{m}:{j}" for m in ("original", "bmfls", "online-cks",
+                                                     "offline-hard") for j in joints]
     # The CSV holds each method's packets (bmfls: the start pose for the first L ticks).
     start = np.array(rows[1][1 + len(joints):1 + 2 * len(joints)], dtype=float)
     np.testing.assert_allclose(start, np.array(rows[3][1 + len(joints):1 + 2 * len(joints)],

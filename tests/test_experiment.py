@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import math
 
@@ -13,9 +14,11 @@ from telesmooth.diagrams.comparison import response_latency
 from telesmooth.diagrams.experiment import (
     ExperimentConfig,
     check_claims,
+    experiment_scenario,
     make_tasks,
     run_experiment,
     summarize,
+    summarize_cells,
 )
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.scripts.cli import main
@@ -102,8 +105,10 @@ def test_bad_configuration_is_named(overrides, message):
 
 def record(shape, demo, method, e_sum, latency, **metrics):
     figures = dict(fd_acc_max_over_limit=1.0, fd_jerk_max_over_limit=1.0,
+                   fd_acc_fraction_over=0.0, fd_jerk_fraction_over=0.0,
                    cartesian_deformation_mean_m=0.0, position_deformation_mean_rad=0.0,
-                   velocity_deformation_mean_rad_per_s=0.0, e_mean_m=e_sum / 10)
+                   velocity_deformation_mean_rad_per_s=0.0, e_mean_m=e_sum / 10,
+                   operator_error_mean_m=0.0, residual_motion_m=0.0, settling_time_s=0.0)
     figures.update(metrics, e_sum_m=e_sum, latency_s=latency)
     return {"kind": "run", "shape": shape, "demo": demo, "method": method, "label": method,
             "study": "main", "value": None, "metrics": figures}
@@ -148,7 +153,7 @@ def test_online_hard_is_set_against_ruckig_demonstration_by_demonstration():
     assert summarize([r for r in records if r["method"] != "ruckig"])["paired"] == {}
 
 
-def claims_for(p, deformation, fd):
+def claims_for(p, deformation, fd, kf_form="kf"):
     records = []
     for method in ("original",) + tuple(p):
         records.append(record("A", 0, method, 10.0 * (1 - p.get(method, 0.0) / 100), 0.0,
@@ -157,7 +162,7 @@ def claims_for(p, deformation, fd):
                               velocity_deformation_mean_rad_per_s=deformation.get(method, 0.0),
                               fd_acc_max_over_limit=fd.get(method, 1.0),
                               fd_jerk_max_over_limit=fd.get(method, 1.0)))
-    return check_claims(summarize(records))
+    return check_claims(summarize(records), kf_form)
 
 
 def test_claims_follow_their_rules_both_ways():
@@ -183,9 +188,125 @@ def test_claims_follow_their_rules_both_ways():
     assert reversed_["C2"]["verdict"] == "does not hold"  # Offline-CKS deforms most
     assert reversed_["C2"]["figures"]["position_deformation_mean_rad"]["largest"] == \
         "offline-cks"
-    assert reversed_["C4"]["verdict"] == "does not hold"  # a negative P, Offline-KS best
+    # Every P of the declared KF form's set is positive, but Offline-KS has the largest.
+    assert reversed_["C4"]["verdict"] == "partly"
+    assert reversed_["C4"]["figures"]["largest"] == "offline-ks"
+    assert reversed_["C4"]["figures"]["beside"]["kf-predictor"] == pytest.approx(-1.0)
     assert reversed_["C5"]["verdict"] == "does not hold"
     assert reversed_["C6"]["verdict"] == "does not hold"
+
+
+def test_every_claim_uses_the_declared_kf_form_and_reports_the_other_beside_it():
+    """The same figures judged with each KF form: the a-posteriori filter deforms least here
+    and the predictor most, so C2/C3 hold for the predictor only, and the verdict follows the
+    declaration, never whichever form fits."""
+    figures = dict(
+        p={"kf": 3.0, "kf-predictor": -4.0, "offline-ks": 2.0, "bmfls": 2.5,
+           "offline-cks": 9.0, "online-cks": 5.0},
+        deformation={"kf": 0.1, "kf-predictor": 10.0, "offline-ks": 1.0, "bmfls": 1.0,
+                     "offline-cks": 2.0, "online-cks": 3.0},
+        fd={"original": 8.0, "kf": 6.0, "kf-predictor": 9.0, "offline-ks": 2.0, "bmfls": 2.0,
+            "offline-cks": 1.2, "online-cks": 1.4})
+    posterior, predictor = claims_for(**figures), claims_for(**figures, kf_form="kf-predictor")
+    assert posterior["C3"]["verdict"] == "does not hold"
+    assert predictor["C3"]["verdict"] == "holds"
+    key = "cartesian_deformation_mean_m"
+    assert posterior["C3"]["figures"][key]["kf-predictor (beside)"] == 10.0
+    assert "kf-predictor" not in posterior["C3"]["figures"][key]["means"]
+    assert posterior["C4"]["verdict"] == "holds"          # the predictor's P < 0 is beside
+    assert predictor["C4"]["verdict"] == "partly"
+    with pytest.raises(ValueError, match="kf_form = 'kalman'"):
+        check_claims(summarize([record("A", 0, "original", 1.0, 0.0)]), "kalman")
+
+
+def _demos(label, ratios, **metrics):
+    return [record("S", demo, label, 10.0, 0.0, fd_acc_max_over_limit=ratio,
+                   fd_jerk_max_over_limit=0.5, **metrics) for demo, ratio in enumerate(ratios)]
+
+
+def test_c1_is_judged_on_the_90th_percentile_with_the_strict_rule_beside_it():
+    """Ten demonstrations: Online-CKS is within 1.5× on nine and 3× on one; its 90th
+    percentile is 1.5 + 0.1 × (3 − 1.5) = 1.65 with numpy's linear interpolation, so C1 is
+    'partly' (Offline-CKS within), and the strict rule on the single worst is also partly."""
+    records = []
+    for demo in range(10):
+        records.append(record("S", demo, "original", 10.0, 0.0))
+    records += _demos("offline-cks", [1.0] * 10)
+    records += _demos("online-cks", [1.2] * 8 + [1.5, 3.0])
+    records += _demos("kf", [4.0] * 10)
+    c1 = check_claims(summarize(records))["C1"]
+    assert c1["figures"]["online-cks"]["worst_ratio_p90"] == pytest.approx(1.65)
+    assert c1["figures"]["online-cks"]["worst_ratio_median"] == pytest.approx(1.2)
+    assert c1["verdict"] == "partly" and c1["figures"]["strict_rule"]["verdict"] == "partly"
+    # With the outlier at 1.55 the percentile is within (1.4 + 0.1 × 0.15 = 1.415), the
+    # strict rule still not.
+    records = [r for r in records if r["label"] != "online-cks"]
+    records += _demos("online-cks", [1.2] * 8 + [1.4, 1.55])
+    c1 = check_claims(summarize(records))["C1"]
+    assert c1["verdict"] == "holds" and c1["figures"]["strict_rule"]["verdict"] == "partly"
+
+
+def test_c6_compares_offline_and_online_at_matched_limit_satisfaction():
+    records = [record("S", 0, "original", 10.0, 0.0)]
+    for label, e_def in (("offline-cks", 3.0), ("online-cks", 2.0),
+                         ("offline-cks-trajectory", 1.0), ("online-hard", 4.0)):
+        records.append(record("S", 0, label, 10.0, 0.0, cartesian_deformation_mean_m=e_def))
+    c6 = check_claims(summarize(records))["C6"]
+    assert c6["verdict"] == "partly"
+    pairs = c6["figures"]
+    assert [row["verdict"] for row in pairs.values()] == ["does not hold", "holds"]
+    within = pairs["both within the limits (offline-cks-trajectory against online-hard)"]
+    assert within["offline_over_online_per_demonstration"]["mean"] == pytest.approx(0.25)
+    only_paper = [r for r in records if r["label"] not in ("offline-cks-trajectory",
+                                                            "online-hard")]
+    assert check_claims(summarize(only_paper))["C6"]["verdict"] == "does not hold"
+
+
+def test_every_method_is_set_beside_offline_hard_demonstration_by_demonstration():
+    records = []
+    for demo, (hard, cks) in enumerate(((1.0, 3.0), (2.0, 2.0), (0.0, 1.0))):
+        records += [record("S", demo, "original", 10.0, 0.0),
+                    record("S", demo, "offline-hard", 10.0, 0.0,
+                           cartesian_deformation_mean_m=hard),
+                    record("S", demo, "online-cks", 10.0, 0.0,
+                           cartesian_deformation_mean_m=cks)]
+    least = summarize(records)["least_deformation"]
+    assert least["online-cks"]["n"] == 2 and least["online-cks"]["mean"] == pytest.approx(2.0)
+    assert least["online-cks"]["reference_zero"] == 1     # offline-hard deforms nothing there
+    assert least["offline-hard"]["mean"] == pytest.approx(1.0)
+
+
+def test_cells_are_summarised_apart():
+    records = []
+    for plant, speed, e_sum in (("lab", 1.0, 8.0), ("lightweight", 2.5, 12.0)):
+        for method, e in (("original", 10.0), ("kf", e_sum)):
+            records.append({**record("A", 0, method, e, 0.0), "plant": plant, "speed": speed})
+    cells = summarize_cells(records)
+    assert list(cells) == ["lab, 1×", "lightweight, 2.5×"]
+    assert cells["lab, 1×"]["main"]["kf"]["improvement_ratio_percent"]["mean"] == \
+        pytest.approx(20.0)
+    assert cells["lightweight, 2.5×"]["main"]["kf"]["improvement_ratio_percent"]["mean"] == \
+        pytest.approx(-20.0)
+
+
+def test_the_grid_spans_plants_and_speeds_and_each_task_has_a_stable_key(base):
+    config = small_config(plants=("lab", "lightweight"), speeds=(1.0, 2.5),
+                          c8_shapes=("Angle",))
+    tasks = make_tasks(config)
+    cells = [(t.plant, t.speed) for t in tasks]
+    assert sorted(set(cells)) == [("lab", 1.0), ("lab", 2.5), ("lightweight", 1.0),
+                                  ("lightweight", 2.5)]
+    assert all(cells.count(cell) == 3 for cell in set(cells))   # original, bmfls, C8
+    assert len({t.key for t in tasks}) == len(tasks)
+    assert [t.key for t in make_tasks(config)] == [t.key for t in tasks]
+    scenario = experiment_scenario(base, config, "Angle", 0, plant="lightweight", speed=2.5)
+    assert scenario.haptic.lasa_mapping.time_scale == pytest.approx(
+        base.haptic.lasa_mapping.time_scale / 2.5)
+    assert scenario.onboard.drive.preset == "lightweight"
+    with pytest.raises(ValueError, match="speeds"):
+        small_config(speeds=(1.0, 1.0))
+    with pytest.raises(ValueError, match="plants"):
+        small_config(plants=("feather",))
 
 
 # --- runs: determinism across workers, the command line ---------------------------------------
@@ -223,11 +344,14 @@ def test_cli_writes_the_report_and_names_bad_shapes(tmp_path, capsys):
     assert status == 0, captured.err
     assert "report:" in captured.out
     data = json.loads((out / "experiment.json").read_text())
-    assert set(data["summary"]["main"]) == {"original", "kf", "offline-cks", "ruckig"}
+    cell = data["cells"]["lab, 1×"]
+    assert set(cell["main"]) == {"original", "kf", "offline-cks", "ruckig"}
     assert data["config"]["offline_solver"] == "banded-ip"
-    assert {"C1", "C8"} <= set(data["claims"])
-    assert data["claims"]["C8"]["verdict"] == "not tested"
-    sensitivity = data["summary"]["sensitivity"]
+    assert {"C1", "C8"} <= set(data["claims"]["lab, 1×"])
+    assert data["claims"]["lab, 1×"]["C8"]["verdict"] == "not tested"
+    # The plant's modes about the start pose of the demonstration.
+    assert 2.0 < cell["plant_modes"]["lowest_hz_min"] < 3.5
+    sensitivity = cell["sensitivity"]
     assert set(sensitivity) == {"sigma0", "sigma_min", "rho"}
     # Each axis includes the scenario's default point (the default Online-CKS run).
     assert 1.0 in [row["value"] for row in sensitivity["sigma0"]]
@@ -236,9 +360,148 @@ def test_cli_writes_the_report_and_names_bad_shapes(tmp_path, capsys):
     text = (out / "report.md").read_text()
     for name in ("limits.png", "tradeoff.png", "improvement.png", "sensitivity.png"):
         assert (out / name).stat().st_size > 0 and name in text
-    assert math.isfinite(data["summary"]["main"]["ruckig"]["added_latency_s"]["mean"])
+    assert math.isfinite(cell["main"]["ruckig"]["added_latency_s"]["mean"])
+    assert "| C1 |" in text and "Vibration modes of the plant" in text
 
     status = main(["experiment", "--out", str(out), "--shapes", "Angle,Circle", "--workers",
                    "0"])
     assert status == 2
     assert "unknown shape(s) ['Circle']" in capsys.readouterr().err
+
+
+# --- the output folder: resuming, refusing a changed grid, shards and merging -----------------
+
+
+def _fake_run_task(calls, stop_after=None):
+    """A stand-in for run_task with the record layout of a real one, instant."""
+    from telesmooth.diagrams import experiment
+
+    def fake(task, base, config):
+        if stop_after is not None and len(calls) >= stop_after:
+            raise KeyboardInterrupt       # the run is stopped here
+        calls.append(task.key)
+        e_sum = 10.0 if task.method == "original" else 8.0 + task.demo
+        return {**record(task.shape, task.demo, task.method, e_sum, 0.0),
+                "index": task.index, "key": task.key, "label": task.label,
+                "study": task.study, "seed": task.seed, "plant": task.plant,
+                "speed": task.speed, "wall_s": 0.0}
+
+    return experiment, fake
+
+
+def _grid():
+    return small_config(demos=(0, 1, 2), methods=("original", "kf", "bmfls"),
+                        speeds=(1.0, 2.5))
+
+
+def test_an_interrupted_run_resumes_where_it_stopped(base, tmp_path, monkeypatch):
+    from telesmooth.scripts.experiment_report import read_records, write_experiment_report
+
+    config, out = _grid(), tmp_path / "exp"
+    tasks = make_tasks(config)
+    calls = []
+    module, fake = _fake_run_task(calls, stop_after=5)
+    monkeypatch.setattr(module, "run_task", fake)
+    with pytest.raises(KeyboardInterrupt):
+        write_experiment_report(out, base, config, workers=0, progress=lambda line: None)
+    assert len(read_records(out)) == 5
+    with (out / "records.jsonl").open("a") as handle:
+        handle.write('{"key": "cut sh')            # a line the stop cut short
+    calls.clear()
+    module, fake = _fake_run_task(calls)
+    monkeypatch.setattr(module, "run_task", fake)
+    lines = []
+    write_experiment_report(out, base, config, workers=0, progress=lines.append)
+    assert calls == [t.key for t in tasks[5:]]    # only what was not done
+    assert "5 already done" in lines[0]
+    data = json.loads((out / "experiment.json").read_text())
+    assert [r["key"] for r in data["records"]] == [t.key for t in tasks]
+    assert set(data["cells"]) == {"lab, 1×", "lab, 2.5×"}
+    # A second rerun computes nothing and reports the same.
+    calls.clear()
+    write_experiment_report(out, base, config, workers=0, progress=lambda line: None)
+    assert calls == []
+
+
+def test_a_folder_of_another_grid_is_refused(base, tmp_path, monkeypatch, capsys):
+    from telesmooth.scripts.experiment_report import write_experiment_report
+
+    out = tmp_path / "exp"
+    module, fake = _fake_run_task([])
+    monkeypatch.setattr(module, "run_task", fake)
+    write_experiment_report(out, base, _grid(), workers=0, progress=lambda line: None)
+    held = (out / "records.jsonl").read_bytes()
+    with pytest.raises(ValueError, match=r"another experiment \(it differs in: speeds\)"):
+        write_experiment_report(out, base, dataclasses.replace(_grid(), speeds=(1.0,)),
+                                workers=0, progress=lambda line: None)
+    other_base = load_scenario(scenario_text="{smoother: {max_jerk_rad_per_s3: 0.2}}")
+    with pytest.raises(ValueError, match="the base scenario"):
+        write_experiment_report(out, other_base, _grid(), workers=0,
+                                progress=lambda line: None)
+    import telesmooth.scripts.experiment_report as experiment_report
+
+    with monkeypatch.context() as patch:
+        patch.setattr(experiment_report, "code_fingerprint", lambda: "another version")
+        with pytest.raises(ValueError, match="the code"):
+            write_experiment_report(out, base, _grid(), workers=0,
+                                    progress=lambda line: None)
+    assert (out / "records.jsonl").read_bytes() == held
+    status = main(["experiment", "--out", str(out), "--shapes", "Angle", "--workers", "0",
+                   "--sensitivity-shapes", "none", "--c8-shapes", "none"])
+    assert status == 2 and "holds the records of another experiment" in capsys.readouterr().err
+
+
+def test_shards_merge_into_the_report_of_the_whole_grid(base, tmp_path, monkeypatch):
+    from telesmooth.scripts.experiment_report import (
+        merge_experiment_reports,
+        read_records,
+        write_experiment_report,
+    )
+
+    config = _grid()
+    module, fake = _fake_run_task([])
+    monkeypatch.setattr(module, "run_task", fake)
+    quiet = {"progress": lambda line: None}
+    write_experiment_report(tmp_path / "whole", base, config, workers=0, **quiet)
+    for part in (1, 2):
+        write_experiment_report(tmp_path / f"part{part}", base, config, workers=0,
+                                shard=(part, 2), **quiet)
+    parts = [read_records(tmp_path / f"part{part}") for part in (1, 2)]
+    assert parts[0] and parts[1] and not set(parts[0]) & set(parts[1])
+    assert "Incomplete" in (tmp_path / "part1" / "report.md").read_text()
+    merge_experiment_reports(tmp_path / "merged", [tmp_path / "part1", tmp_path / "part2"],
+                             base, config, **quiet)
+
+    def claims_and_records(folder):
+        data = json.loads((folder / "experiment.json").read_text())
+        return data["claims"], [{k: v for k, v in r.items() if k != "wall_s"}
+                                for r in data["records"]]
+
+    assert claims_and_records(tmp_path / "merged") == claims_and_records(tmp_path / "whole")
+    assert "Incomplete" not in (tmp_path / "merged" / "report.md").read_text()
+    with pytest.raises(ValueError, match="another experiment"):
+        merge_experiment_reports(tmp_path / "m2", [tmp_path / "part1"], base,
+                                 dataclasses.replace(config, kf_form="kf-predictor"), **quiet)
+
+
+def test_a_method_that_fails_on_one_demonstration_is_reported_not_fatal(base, monkeypatch,
+                                                                         tmp_path):
+    from telesmooth.diagrams import experiment
+    from telesmooth.scripts.experiment_report import write_experiment_report
+
+    real = experiment.run_method
+
+    def fails_for_bmfls(setup, method, **kwargs):
+        if method == "bmfls":
+            raise RuntimeError("method 'bmfls' failed: forced")
+        return real(setup, method, **kwargs)
+
+    monkeypatch.setattr(experiment, "run_method", fails_for_bmfls)
+    report = write_experiment_report(tmp_path / "exp", base, small_config(), workers=0,
+                                     progress=lambda line: None)
+    data = json.loads((tmp_path / "exp" / "experiment.json").read_text())
+    cell = data["cells"]["lab, 1×"]
+    assert set(cell["main"]) == {"original"}
+    assert [row["error"] for row in cell["failed"]] == [
+        "RuntimeError: method 'bmfls' failed: forced"]
+    assert "1 run(s) failed" in report.read_text()

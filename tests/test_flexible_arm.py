@@ -114,8 +114,8 @@ def hand_linear_model(plant, arm, *, with_servo=True):
         stiffness[deflection, deflection] = joint.stiffness_n_m_per_rad
         damping[deflection, deflection] = joint.damping_n_m_s_per_rad
         if with_servo:
-            stiffness[motor, motor] = joint.motor_kp
-            damping[motor, motor] = joint.motor_kd
+            stiffness[motor, motor] = joint.motor_kp_n_m_per_rad
+            damping[motor, motor] = joint.motor_kd_n_m_s_per_rad
     inverse_mass = np.linalg.inv(mass)
     return np.block([[np.zeros((size, size)), np.eye(size)],
                      [-inverse_mass @ stiffness, -inverse_mass @ damping]])
@@ -170,15 +170,17 @@ def test_ports_and_plant_structure_air_bearing():
     dut = FlexibleJointArm(FlexibleArmConfig(arm="air_bearing_arm"))
     assert dut.joint_names == ("shoulder", "elbow", "wrist")
     assert dut.joint_names == AIR_BEARING_ARM.joint_names
-    assert dut.num_input_ports() == 1
+    assert dut.num_input_ports() == 2
     assert dut.get_input_port(0).get_name() == "q_commanded"
     assert dut.get_input_port(0).size() == 3
+    assert dut.get_input_port(1).get_name() == "command_time"
+    assert dut.get_input_port(1).size() == 1
     sizes = {dut.get_output_port(i).get_name(): dut.get_output_port(i).size()
              for i in range(dut.num_output_ports()) if dut.get_output_port(i).get_name()
              != "query_object"}
     assert sizes == {"position_measured": 3, "q_link": 3, "q_motor": 3,
-                     "tracker_sample_time": 1, "command_rejected": 1, "state_desired": 6,
-                     "plant_state": 12}
+                     "tracker_sample_time": 1, "tracker_measurement": 10,
+                     "command_rejected": 1, "state_desired": 6, "plant_state": 12}
     plant = dut.plant
     assert plant.time_step() == 1e-3
     assert plant.num_positions() == 6 and plant.num_actuators() == 3
@@ -186,7 +188,7 @@ def test_ports_and_plant_structure_air_bearing():
     for joint in AIR_BEARING_ARM_3DOF.joints:  # the servo gains come from the description
         actuator = plant.GetJointActuatorByName(f"{joint.name}_motor")
         gains = actuator.get_controller_gains()
-        assert (gains.p, gains.d) == (joint.motor_kp, joint.motor_kd)
+        assert (gains.p, gains.d) == (joint.motor_kp_n_m_per_rad, joint.motor_kd_n_m_s_per_rad)
         assert actuator.effort_limit() == joint.max_effort_n_m
     # Each actuator row of the desired-state map selects its own joint's q and v.
     permutation = desired_state_permutation(plant, dut.model_instance, dut.joint_names)
@@ -434,9 +436,9 @@ def test_unsafe_commands_hold_the_robot_and_raise_the_flag():
     port.FixValue(context, [0.06, 0.0, 0.0])  # a valid command: recovery
     simulator.AdvanceTo(1.6)
     assert flag.Eval(context)[0] == 0.0
-    # 0.1 s into the 0.25 s ramp from 0.05 to 0.06.
+    # 0.1 s into the 0.25 s ramp from 0.05 to 0.06, given one plant step (1 ms) ahead.
     assert dut.GetOutputPort("state_desired").Eval(context)[0] == pytest.approx(
-        0.05 + 0.4 * 0.01, abs=1e-12)
+        0.05 + (0.1 + 0.001) / 0.25 * 0.01, abs=1e-12)
     assert dut.interpolator.get_rejected_command_count(
         dut.interpolator.GetMyContextFromRoot(context)) == 2
 

@@ -30,7 +30,9 @@ from telesmooth.diagrams.offline import (
 from telesmooth.diagrams.scenario import load_scenario, make_haptic_recording
 from telesmooth.smoothing.metrics import VIOLATION_RTOL
 from telesmooth.smoothing.model import JerkModel
+from telesmooth.smoothing.kalman import rest_start_prior
 from telesmooth.smoothing.offline import OfflineCksResult, solve_offline_cks
+from telesmooth.systems.laser_tracker import tracker_record
 
 SESSION = ("{haptic: {source: synthetic, synthetic: {duration_s: 8.0, hold_start_s: 1.0, "
            "hold_end_s: 1.0}}, settle_s: 1.0}")
@@ -83,12 +85,14 @@ def test_samples_are_the_fifo_samples_of_the_ik_targets(scenario, plan):
 
 
 def test_plan_equals_an_independent_offline_cks_solve(scenario, plan):
+    """The plan starts, as the robot, at rest at its start pose (the rest start prior)."""
     smoother = scenario.smoother
     model = JerkModel.make(TICK, smoother.sigma, smoother.r, num_joints=3)
     dut = solve_offline_cks(plan.q_raw, model,
                             max_acceleration=smoother.max_acceleration_rad_per_s2,
                             max_jerk=smoother.max_jerk_rad_per_s3, constraint="trajectory",
-                            rest_at_end=True)
+                            rest_at_end=True, start_position=plan.q_start,
+                            prior=rest_start_prior(plan.q_start, model))
     assert dut.is_success and plan.solver.is_success
     assert plan.solver.solution_results == dut.solution_results
     np.testing.assert_allclose(plan.states_planned, dut.states, rtol=0, atol=1e-12)
@@ -246,16 +250,16 @@ def test_playback_sends_the_planned_samples_at_4_hz_and_the_robot_follows(scenar
             np.testing.assert_array_equal(states[m, 3:6], plan.states_planned[k, :, 1])
     # The robot accepted every command and ends on the last (rest) pose.
     assert np.all(handles.logs["command_rejected"].FindLog(context).data() == 0.0)
-    q_link = handles.logs["q_link"].FindLog(context).data()
-    assert np.abs(q_link[:, -1] - plan.q_planned[-1]).max() < 0.01
-    assert np.abs(q_link[:, 0] - plan.q_start).max() < 1e-9
+    q_link = tracker_record(handles.logs["tracker"].FindLog(context).data().T).q_link
+    assert np.abs(q_link[-1] - plan.q_planned[-1]).max() < 0.01
+    assert np.abs(q_link[0] - plan.q_start).max() < 1e-9
 
 
 def test_run_offline_returns_the_plan_and_copied_logs(scenario, plan):
     dut, logs = run_offline(scenario)
     np.testing.assert_array_equal(dut.q_planned, plan.q_planned)
-    assert set(logs) == {"sequence_number", "send_time", "q_sent", "state_sent", "q_link",
-                         "q_motor", "position_measured", "command_rejected"}
+    assert set(logs) == {"sequence_number", "send_time", "q_sent", "state_sent", "tracker",
+                         "command_rejected"}
     assert logs["q_sent"].values.shape[1] == 3
     np.testing.assert_array_equal(logs["q_sent"].values[-1], plan.q_planned[-1])
-    assert np.abs(logs["q_link"].values[-1] - plan.q_planned[-1]).max() < 0.01
+    assert np.abs(logs["tracker"].q_link[-1] - plan.q_planned[-1]).max() < 0.01

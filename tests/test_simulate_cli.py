@@ -25,9 +25,15 @@ def run(tmp_path_factory):
 def test_writes_every_file(run):
     for name in ("report.md", "metrics.json", "commands.csv", "telemetry.csv", "targets.csv",
                  "joints.png", "acceleration_jerk.png", "end_effector.png",
-                 "tracking_error.png", "sigma_collision.png"):
+                 "tracking_error.png", "error_along_path.png", "sigma_collision.png"):
         assert (run / name).is_file(), name
     assert (run / "joints.png").stat().st_size > 10_000
+    text = (run / "report.md").read_text()
+    # The report names the demonstration, states the plant's modes, and links no replay
+    # that was not made.
+    assert "the LASA demonstration `Angle` #0 at 1× the demonstrator's hand speed" in text
+    assert "Plant: `air_bearing_arm`, drive preset `lab` (1 ms steps)" in text
+    assert "2.66 Hz (ζ 0.072)" in text and "run.html" not in text
 
 
 def test_packets_are_4hz_and_metrics_match_the_written_commands(run):
