@@ -350,17 +350,23 @@ def _check_at_most(option: str, value: float, limit: float) -> None:
 
 
 def _check_run_length(scenario, duration_s, *, uses_duration: bool = True) -> None:
-    """Refuses a simulated run too short for one command to reach the robot (the metrics
-    compare commands with the operator's targets from the FIFO delay on) or too long."""
-    shortest = scenario.fifo.delay_s + scenario.uplink.period_s
+    """Refuses a simulated run too short for one command to reach the robot and be measured
+    (the metrics compare commands with the operator's targets from the FIFO delay on, and the
+    robot's response a ramp later) or too long."""
+    interpolator = scenario.onboard.interpolator
+    ramp = (interpolator.ramp_duration_s if interpolator.interpolation == "linear" else 0.0)
+    # ... and the tracker samples the response after the ramp, one tracker period later.
+    shortest = (scenario.fifo.delay_s + max(scenario.uplink.period_s, ramp)
+                + scenario.onboard.tracker.period_s)
     for label, value in (("--duration", duration_s),
                          ("simulation_duration_s", scenario.simulation_duration_s)):
         if value is None or not uses_duration:
             continue
         if value < shortest - 1e-9:
             raise ValueError(
-                f"{label} = {value!r} s is shorter than the FIFO delay plus one uplink period "
-                f"({shortest:g} s): no command would reach the robot")
+                f"{label} = {value!r} s is shorter than the FIFO delay, an uplink period or "
+                f"the onboard ramp, and a tracker sample ({shortest:g} s): no command's "
+                "response would be measured")
         _check_at_most(label, value, MAX_SIMULATED_S)
         return
     _check_at_most("settle_s", scenario.settle_s, MAX_SIMULATED_S)
@@ -446,7 +452,7 @@ def run_foresight(args) -> int:
     scenario = _load_scenario(args)
     _check_run_length(scenario, None, uses_duration=False)
     if args.step < 1:
-        raise ValueError(f"--step = {args.step} must be >= 1")
+        raise ValueError(f"--step = {args.step} must be an integer >= 1")
     with _scenario_outputs(args, scenario) as outputs:
         report = write_foresight_report(outputs.folder("--out", args.out), scenario,
                                         args.method, step=args.step)

@@ -241,7 +241,7 @@ def cases() -> list[Case]:
     add("demo-out-parent-file", "3.1", ["demo", "--out", "in.csv/sub"], inputs=("in.csv",),
         absent=(), must_name=("--out", "in.csv"))
     add("simulate-out-holds-scenario", "3.1",
-        ["simulate", "--scenario", "out/scenarios.yaml", "--out", "out", "--duration", "1"],
+        ["simulate", "--scenario", "out/scenarios.yaml", "--out", "out", "--duration", "2"],
         setup=write("out/scenarios.yaml", "Defaults: {}\n"), inputs=("out/scenarios.yaml",),
         expect="ok", note="an input inside --out is kept: the report writes other names")
     add("simulate-out-is-scenario", "3.1",
@@ -249,7 +249,7 @@ def cases() -> list[Case]:
         absent=(), must_name=("--out", "scn.yaml"))
     add("simulate-out-holds-haptic-file", "3.1",
         ["simulate", "--scenario-text", "{haptic: {source: file, file: out/telemetry.csv}}",
-         "--out", "out", "--duration", "1"],
+         "--out", "out", "--duration", "2"],
         setup=write("out/telemetry.csv", "t,x_m,y_m,phi_rad\n0,0.7,0,0\n0.01,0.7,0,0\n"),
         inputs=("out/telemetry.csv",), absent=("out/report.md",),
         must_name=("--out", "telemetry.csv"))
@@ -387,7 +387,7 @@ def cases() -> list[Case]:
     add("smooth-operator-empty", "3.3",
         [*SMOOTH, "--operator", " ", "--sigma-store", "s.json"], absent=("out", "s.json"),
         must_name=("operator",))
-    add("scenario-name-empty", "3.3", [*SIM, "--scenario-name", "", "--duration", "1"],
+    add("scenario-name-empty", "3.3", [*SIM, "--scenario-name", "", "--duration", "2"],
         expect="ok", absent=(), note="empty name: the default entry")
     add("compare-solver-bad", "3.3", ["compare", "--solver", "cplex", "--out", "out"],
         must_name=("--solver",))

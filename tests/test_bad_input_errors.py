@@ -65,8 +65,8 @@ CASES = {
     "infinite process duration": (["onboard", "--lcm-url", "memq://", "--no-auth",
                                    "--duration", "inf"], ("--duration = inf must be finite",)),
     "shorter than the FIFO delay": (["simulate", "--duration", "0.8", "--out", "out"],
-                                    ("--duration = 0.8 s is shorter than the FIFO delay plus "
-                                     "one uplink period (1 s)",)),
+                                    ("--duration = 0.8 s is shorter than the FIFO delay",
+                                     "(1.01 s): no command's response would be measured")),
     "scenario shorter than the FIFO delay": (["simulate", "--scenario-text",
                                               "{simulation_duration_s: 0.5}", "--out", "out"],
                                              ("simulation_duration_s = 0.5 s is shorter",)),

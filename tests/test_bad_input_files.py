@@ -127,7 +127,7 @@ def test_a_report_file_that_would_replace_an_input_writes_nothing(folder, capsys
     status, stdout, stderr = run(
         capsys, "simulate", "--scenario-text",
         "{haptic: {source: file, file: out/telemetry.csv}}", "--out", "out",
-        "--duration", "1")
+        "--duration", "2")
     assert_one_line_error(status, stdout, stderr, "simulate", "--out = 'out'",
                           "'telemetry.csv' would overwrite the input haptic.file")
     assert snapshot(folder) == before
