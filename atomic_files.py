@@ -298,13 +298,7 @@ class Outputs:
                 written.
         """
         path = Path(path)
-        label, existing = self._examine(option, path)
-        if existing is not None and not stat.S_ISDIR(existing.st_mode):
-            what = "a file" if stat.S_ISREG(existing.st_mode) else _kind(existing.st_mode)
-            raise OutputPathError(f"{label} is {what}, not a folder; give a folder name")
-        for other, out, _, _ in self._files:
-            if _is_within(out, path):
-                raise OutputPathError(f"{label} holds the output of {other}")
+        label = self._check_folder(option, path)
         for other, folder, _ in self._folders:
             if _is_within(path, folder) or _is_within(folder, path):
                 raise OutputPathError(f"{label} overlaps the folder of {other}")
@@ -330,13 +324,7 @@ class Outputs:
             OutputPathError: as :meth:`folder`.
         """
         path = Path(path)
-        label, existing = self._examine(option, path)
-        if existing is not None and not stat.S_ISDIR(existing.st_mode):
-            what = "a file" if stat.S_ISREG(existing.st_mode) else _kind(existing.st_mode)
-            raise OutputPathError(f"{label} is {what}, not a folder; give a folder name")
-        for other, out, _, _ in self._files:
-            if _is_within(out, path):
-                raise OutputPathError(f"{label} holds the output of {other}")
+        label = self._check_folder(option, path)
         self._make_parents(label, path)
         return path
 
@@ -411,6 +399,18 @@ class Outputs:
             self.abort()
 
     # --- helpers ---
+
+    def _check_folder(self, option: str, path: Path) -> str:
+        """The label of ``path`` as a folder output, after refusing a non-folder there and a
+        folder that holds an output file."""
+        label, existing = self._examine(option, path)
+        if existing is not None and not stat.S_ISDIR(existing.st_mode):
+            what = "a file" if stat.S_ISREG(existing.st_mode) else _kind(existing.st_mode)
+            raise OutputPathError(f"{label} is {what}, not a folder; give a folder name")
+        for other, out, _, _ in self._files:
+            if _is_within(out, path):
+                raise OutputPathError(f"{label} holds the output of {other}")
+        return label
 
     def _examine(self, option: str, path: Path):
         """(the label of messages, ``os.stat`` of ``path`` or None if it does not exist)."""
