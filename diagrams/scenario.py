@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import pathlib
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -35,13 +36,21 @@ from telesmooth.datasets.haptic_recording import (
     read_haptic_csv,
     read_haptic_npz,
 )
-from telesmooth.datasets.lasa import WorkspaceMapping
+from telesmooth.datasets.lasa import WorkspaceMapping, validate_demo_index, validate_shape
 from telesmooth.datasets.operator_recordings import (
     lasa_haptic_recording,
     synthetic_haptic_recording,
 )
 from telesmooth.datasets.synthetic import SyntheticOperatorConfig
 from telesmooth.diagrams.channels import DEFAULT_LCM_URL
+from telesmooth.user_input import (
+    MAX_YAML_BYTES,
+    InputFileError,
+    quote,
+    quote_path,
+    read_file_bytes,
+    unknown_choice,
+)
 from telesmooth.smoothing.validation import as_per_joint
 from telesmooth.diagrams.typed_yaml import config_from_data, load_yaml_text, merge_data
 from telesmooth.systems.collision_checker import CollisionCheckerConfig
@@ -103,11 +112,23 @@ class HapticScenario:
     live_duration_s: float = 60.0
 
     def __post_init__(self) -> None:
+        # Every field is checked here, where the loader knows its key path (haptic.<field>),
+        # not later where the recording is made and the names are the dataset's.
         if self.source not in HAPTIC_SOURCES:
-            raise ValueError(
-                f"haptic.source = {self.source!r} must be one of {HAPTIC_SOURCES}")
+            raise ValueError(unknown_choice("source", self.source, HAPTIC_SOURCES,
+                                            noun="haptic sources"))
         if self.source == "file" and not self.file:
-            raise ValueError("haptic.file must name a CSV or NPZ recording when source = 'file'")
+            raise ValueError("file must name a CSV or NPZ recording when source = 'file'")
+        validate_shape(self.lasa_shape, field="lasa_shape")
+        validate_demo_index(self.lasa_demo, self.lasa_shape, field="lasa_demo")
+        for name in ("period_s", "live_duration_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"{name} = {value!r} must be positive and finite")
+        pose = self.live_initial_pose
+        if len(pose) != 3 or not all(math.isfinite(v) for v in pose):
+            raise ValueError(f"live_initial_pose = {quote(pose)} must be 3 finite numbers "
+                             "(x_m, y_m, phi_rad)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -274,13 +295,17 @@ def make_haptic_recording(scenario: Scenario) -> HapticRecording | None:
     else:
         path = pathlib.Path(haptic.file)
         reader = read_haptic_npz if path.suffix.lower() == ".npz" else read_haptic_csv
-        recording = reader(path)
+        try:
+            recording = reader(path)
+        except ValueError as error:   # the reader's messages start with the path
+            raise ValueError(f"haptic.file: {error}") from None
         # The pose names carry the units: a planar pose, or (for the 6-DOF arm) a spatial one.
         allowed = [PLANAR_POSE_NAMES] + ([SPATIAL_POSE_NAMES] if scenario.arm == "space_arm"
                                          else [])
         if tuple(recording.pose_names) not in allowed:
             raise ValueError(
-                f"haptic.file = {str(path)!r}: the pose columns {list(recording.pose_names)} "
+                f"haptic.file = {quote_path(str(path))}: the pose columns "
+                f"{quote(list(recording.pose_names))} "
                 f"are not a pose of the arm {scenario.arm!r}; expected "
                 + " or ".join(str(list(names)) for names in allowed)
                 + " (metres and radians)")
@@ -314,29 +339,54 @@ def initial_position(scenario: Scenario, recording: HapticRecording | None) -> n
 
 
 def load_scenario(*, filename=None, scenario_name: str | None = None,
-                  scenario_text: str | None = None) -> Scenario:
+                  scenario_text: str | None = None,
+                  option_names: Mapping[str, str] | None = None) -> Scenario:
     """Loads a scenario: file (a mapping of names to scenarios) → named entry → text overrides.
 
     Args:
         filename: YAML file; default the built-in ``diagrams/scenarios.yaml``.
         scenario_name: Entry to use; default ``"Defaults"``.
         scenario_text: YAML mapping merged on top (e.g. ``"{arm: space_arm}"``).
+        option_names: How the caller's user spells ``filename``, ``scenario_name`` and
+            ``scenario_text`` (e.g. ``{"filename": "--scenario"}`` on the command line), for
+            messages; default the argument names.
 
     Raises:
-        ValueError: unknown scenario name (listing the known ones), unknown keys, invalid
-            values (each naming the key path and value).
+        ValueError: the file cannot be read within the bounds of
+            :func:`~telesmooth.diagrams.typed_yaml.load_yaml_text` (a regular UTF-8 file of at
+            most ``MAX_YAML_BYTES``), unknown scenario name (listing the known ones), an
+            entry that is not a mapping, unknown keys, invalid values; each message names the
+            source and the key path as written (``haptic.period_s``) and the value.
     """
+    names = {"filename": "scenario file", "scenario_name": "scenario_name",
+             "scenario_text": "scenario_text", **(option_names or {})}
     path = pathlib.Path(filename) if filename is not None else BUILTIN_SCENARIOS_FILE
+    label = (f"{names['filename']} = {quote_path(str(path))}" if filename is not None
+             else "the built-in scenario file")
+    raw = read_file_bytes(path, what=label, max_bytes=MAX_YAML_BYTES)
     try:
-        text = path.read_text()
-    except OSError as error:
-        raise ValueError(f"scenario file {path}: cannot read ({error.strerror})") from None
-    scenarios = load_yaml_text(text, source=f"scenario file {path}")
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as error:
+        line = 1 + raw.count(b"\n", 0, error.start)
+        raise InputFileError(f"{label}: line {line}: byte(s) {raw[error.start:error.end]!r} "
+                             "are not valid UTF-8; save the file as UTF-8") from None
+    scenarios = load_yaml_text(text, source=label)
     name = scenario_name or "Defaults"
     if name not in scenarios:
         raise ValueError(
-            f"scenario_name = {name!r} is not in {path}; it has {sorted(scenarios)}")
-    data = scenarios[name] or {}
+            f"{names['scenario_name']} = {quote(name)} is not in {label}; it has "
+            f"{quote(sorted(scenarios), 150)}")
+    data = scenarios[name]
+    if data is None:
+        data = {}
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{label}: the entry {quote(name)} must be a mapping of scenario keys; "
+                         f"got {quote(data)}")
+    where = f"scenario {quote(name)}"
     if scenario_text:
-        data = merge_data(data, load_yaml_text(scenario_text, source="scenario_text"))
-    return config_from_data(Scenario, data, path="scenario")
+        data = merge_data(data, load_yaml_text(scenario_text, source=names["scenario_text"]))
+        where += f" with {names['scenario_text']}"
+    try:
+        return config_from_data(Scenario, data, path="")
+    except ValueError as error:
+        raise ValueError(f"{where}: {error}") from None

@@ -533,9 +533,11 @@ def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm, initial_position_ra
     stop and re-joins them without a jump. ``initial_position_rad`` defaults to the
     scenario's (or the IK of its first pose).
 
-    ``uplink_lcm``: optional ``lcm.LCM`` (the ``lcm`` package) on the same bus as ``lcm``
-    for the uplink subscription, which then queues a burst of packets instead of keeping
-    one (:mod:`~telesmooth.systems.lcm_safe_subscriber`); the onboard process uses one.
+    ``uplink_lcm``: optional ``lcm.LCM`` (the ``lcm`` package) or
+    :class:`~telesmooth.link.udpm_receiver.UdpmReceiver` on the same bus as ``lcm`` for the
+    uplink subscription, which then queues a burst of packets instead of keeping one
+    (:mod:`~telesmooth.systems.lcm_safe_subscriber`); the onboard process uses a receiver,
+    which also counts the packets lost before decoding.
     """
     arm = scenario.arm_description
     if initial_position_rad is None:
@@ -543,9 +545,13 @@ def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm, initial_position_ra
     builder = DiagramBuilder()
     builder.AddNamedSystem("lcm", LcmInterfaceSystem(lcm))
     # A subscriber that survives malformed packets; the receiver examines every packet.
+    # With its own uplink bus it pumps when the receiver polls, so that the receiver sees
+    # every batch of packets it takes (lcm_safe_subscriber: pump_period_s).
     subscriber = builder.AddNamedSystem("joint_command_subscriber", LcmSafeSubscriber(
         channel=TELEOP_JOINT_COMMAND, lcm_type=lcmt_teleop_joint_command,
-        lcm=lcm if uplink_lcm is None else uplink_lcm))
+        lcm=lcm if uplink_lcm is None else uplink_lcm,
+        pump_period_s=(None if uplink_lcm is None
+                       else scenario.command_receiver.poll_period_s)))
     receiver, guard = AddOnboardCommandPath(
         builder, scenario, packets=subscriber.get_packets_output_port(),
         initial_position_rad=initial_position_rad, uplink_key=uplink_key)

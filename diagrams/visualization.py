@@ -280,7 +280,9 @@ def save_meshcat_recording(meshcat, out_path, duration_s: float) -> dict:
     frames = animation.frame(duration_s) - animation.frame(0.0) + 1
     out = Path(out_path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(meshcat.StaticHtml(), encoding="utf-8")
+    from telesmooth.atomic_files import write_text
+
+    write_text(out, meshcat.StaticHtml())
     return {"html_path": str(out), "html_bytes": out.stat().st_size, "frames": int(frames)}
 
 

@@ -16,22 +16,25 @@ corrupted terminator therefore still verifies, but decodes to the very message t
 signed.
 
 Keys are at least :data:`MIN_KEY_BYTES` bytes, stored as a hex string in a file readable by
-its owner only (:func:`generate_key_file`) or in the environment variable
-:data:`KEY_ENVIRONMENT_VARIABLE`. Error messages name where a key came from and what is wrong
-with it, but never contain key material.
+its owner only (:func:`generate_key_file`; :func:`load_key` refuses a file others can access)
+or in the environment variable :data:`KEY_ENVIRONMENT_VARIABLE`. Error messages name where a
+key came from and what is wrong with it, but never contain key material.
 """
 
 from __future__ import annotations
 
-import errno
 import hashlib
 import hmac
 import os
+import re
 import secrets
+import shlex
 import stat
-import warnings
 from collections.abc import Mapping
 from pathlib import Path
+
+from telesmooth.atomic_files import create_new_file
+from telesmooth.user_input import MAX_KEY_FILE_BYTES, quote_path, read_file_bytes
 
 __all__ = [
     "AUTH_CLASSES",
@@ -85,7 +88,12 @@ class UplinkKeyError(ValueError):
 
 
 class UplinkKeyPermissionWarning(UserWarning):
-    """The key file can be read or written by users other than its owner."""
+    """Kept for compatibility: a key file others can access is now refused
+    (:class:`UplinkKeyError`), as ssh refuses such a private key."""
+
+
+_KEY_LIKE = re.compile(r"[0-9a-fA-F]{%d,}" % (2 * MIN_KEY_BYTES))
+"""A string that looks like key material (at least a minimal key's hex digits)."""
 
 
 def check_key(key, *, field: str = "key") -> bytes:
@@ -198,13 +206,26 @@ def _parse_hex_key(text: str, source: str) -> bytes:
     return key
 
 
+def _key_file_label(path) -> str:
+    """How messages name a key file: its path, unless the "path" looks like key material (a
+    long hex string given where a file is expected), which is never printed."""
+    text = os.fspath(path)
+    if _KEY_LIKE.fullmatch(os.path.basename(text) or text):
+        return (f"uplink key file (the value given is a {len(text)}-character hex string, a "
+                "key where a file path is expected; not shown: write the key to a file with "
+                "mode 600 and give its path)")
+    return f"uplink key file {quote_path(text)}"
+
+
 def load_key(path: str | os.PathLike | None = None, *,
              environ: Mapping[str, str] = os.environ) -> bytes:
     """Loads the uplink key: from the file ``path`` if given, else from the environment.
 
     The file (or the variable :data:`KEY_ENVIRONMENT_VARIABLE`) holds the key as a hex
-    string; surrounding whitespace is ignored. On POSIX a file that group or others can
-    access draws an :class:`UplinkKeyPermissionWarning`.
+    string; surrounding whitespace is ignored. As ssh does with private keys, a file that
+    group or others can access (any permission bit outside the owner's) is refused, with the
+    ``chmod`` that fixes it; a file that is not a regular file (``/dev/zero``, a FIFO) or is
+    larger than :data:`~telesmooth.user_input.MAX_KEY_FILE_BYTES` is refused before reading.
 
     Args:
         path: Key file, or None to use ``environ[KEY_ENVIRONMENT_VARIABLE]``.
@@ -214,8 +235,9 @@ def load_key(path: str | os.PathLike | None = None, *,
         The key, ≥ :data:`MIN_KEY_BYTES` bytes.
 
     Raises:
-        UplinkKeyError: no key, unreadable file, not hex, or too short; the message names
-            the file path or the environment variable.
+        UplinkKeyError: no key, unreadable file, a file others can access, not hex, or too
+            short; the message names the file path or the environment variable, never the
+            key (nor a "path" that is itself a hex key).
     """
     if path is None:
         source = f"environment variable {KEY_ENVIRONMENT_VARIABLE}"
@@ -224,15 +246,20 @@ def load_key(path: str | os.PathLike | None = None, *,
             raise UplinkKeyError(f"no uplink key: {source} is not set and no key file was "
                                  "given")
         return _parse_hex_key(text, source)
-    source = f"uplink key file {os.fspath(path)}"
+    source = _key_file_label(path)
     try:
         mode = os.stat(path).st_mode
-        raw = Path(path).read_bytes()
     except OSError as error:
         raise UplinkKeyError(f"{source}: cannot read it ({error.strerror})") from None
-    if os.name == "posix" and mode & (stat.S_IRWXG | stat.S_IRWXO):
-        warnings.warn(f"{source} has mode {stat.S_IMODE(mode):#o}: group/others can access "
-                      "the key; chmod 600 it", UplinkKeyPermissionWarning, stacklevel=2)
+    if os.name == "posix" and stat.S_ISREG(mode) and mode & (stat.S_IRWXG | stat.S_IRWXO):
+        shown = (shlex.quote(os.fspath(path)) if not source.endswith("not shown)")
+                 else "FILE")
+        raise UplinkKeyError(f"{source} has mode {stat.S_IMODE(mode):#o}: group or others can "
+                             f"access the key; refusing it (fix: chmod 600 {shown})")
+    try:
+        raw = read_file_bytes(path, what=source, max_bytes=MAX_KEY_FILE_BYTES)
+    except ValueError as error:
+        raise UplinkKeyError(str(error)) from None
     try:
         text = raw.decode("ascii")
     except UnicodeDecodeError:
@@ -243,23 +270,39 @@ def load_key(path: str | os.PathLike | None = None, *,
 def generate_key_file(path: str | os.PathLike) -> bytes:
     """Writes a fresh random :data:`GENERATED_KEY_BYTES`-byte key, as hex, to a new file.
 
-    The file is created with mode 0o600 (owner read/write only); an existing file is never
-    overwritten.
+    The file is created with mode 0o600 (owner read/write only), complete or not at all
+    (:func:`~telesmooth.atomic_files.create_new_file`); missing parent folders are created
+    with mode 0o700 (e.g. ``~/.telesmooth``). An existing path is never overwritten.
 
     Returns:
         The key written.
 
     Raises:
-        FileExistsError: ``path`` exists.
+        UplinkKeyError: ``path`` exists (a key, or anything else), a parent is a file, or
+            the folder cannot be written; the message names the path.
     """
-    key = secrets.token_bytes(GENERATED_KEY_BYTES)
+    if not os.fspath(path).strip():
+        raise UplinkKeyError("uplink key file '': give the path of the file to create")
+    path = Path(path)
+    label = f"uplink key file {quote_path(os.fspath(path))}"
+    if path.exists() or path.is_symlink():
+        what = "a folder" if path.is_dir() else "a file" if path.is_file() else "a special file"
+        raise UplinkKeyError(f"{label} exists ({what}); refusing to overwrite it (remove it "
+                             "first to make a new key)")
+    missing = []
+    for parent in path.parents:
+        if parent.is_dir():
+            break
+        if parent.exists() or parent.is_symlink():
+            raise UplinkKeyError(f"{label}: {quote_path(str(parent))} is a file, not a folder")
+        missing.append(parent)
     try:
-        descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        for parent in reversed(missing):
+            os.mkdir(parent, 0o700)
+        key = secrets.token_bytes(GENERATED_KEY_BYTES)
+        create_new_file(path, (key.hex() + "\n").encode("ascii"), file_mode=0o600)
     except FileExistsError:
-        raise FileExistsError(errno.EEXIST, "uplink key file exists; refusing to overwrite "
-                              "it", os.fspath(path)) from None
-    with os.fdopen(descriptor, "w", encoding="ascii") as handle:
-        if hasattr(os, "fchmod"):
-            os.fchmod(handle.fileno(), 0o600)   # whatever the umask
-        handle.write(key.hex() + "\n")
+        raise UplinkKeyError(f"{label} exists; refusing to overwrite it") from None
+    except OSError as error:
+        raise UplinkKeyError(f"{label}: cannot create it ({error.strerror})") from None
     return key

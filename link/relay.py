@@ -34,8 +34,13 @@ from pathlib import Path
 
 import lcm
 
-from telesmooth.diagrams.channels import ONBOARD_JOINT_STATUS, TELEOP_JOINT_COMMAND
+from telesmooth.diagrams.channels import (
+    LCM_URL_SCHEMES,
+    ONBOARD_JOINT_STATUS,
+    TELEOP_JOINT_COMMAND,
+)
 from telesmooth.link.faults import LinkFaultConfig, LinkQueue
+from telesmooth.user_input import quote
 
 __all__ = ["POLL_PERIOD_S", "check_relay_urls", "main", "parse_link_option", "run_relay"]
 
@@ -73,9 +78,10 @@ def check_relay_urls(uplink_in_url: str, uplink_out_url: str) -> None:
             would receive its own output); the message names the fields and values.
     """
     for field, url in (("uplink_in_url", uplink_in_url), ("uplink_out_url", uplink_out_url)):
-        if not isinstance(url, str) or "://" not in url:
-            raise ValueError(f"{field} = {url!r} must be an LCM URL such as "
-                             f"'udpm://{_DEFAULT_UDPM_GROUP}:7901?ttl=0'")
+        if (not isinstance(url, str) or "://" not in url
+                or url.split("://", 1)[0] not in LCM_URL_SCHEMES):
+            raise ValueError(f"{field} = {quote(url)} must be an LCM URL such as "
+                             f"'udpm://{_DEFAULT_UDPM_GROUP}:7901?ttl=0' (or memq://)")
     if _bus_identity(uplink_in_url) == _bus_identity(uplink_out_url):
         raise ValueError(f"uplink_in_url = {uplink_in_url!r} and uplink_out_url = "
                          f"{uplink_out_url!r} are the same LCM bus: the relay would receive "
@@ -146,10 +152,9 @@ class _Direction:
 
 
 def _write_report(report: dict, report_path) -> None:
-    path = Path(report_path)
-    temporary = path.with_name(path.name + ".tmp")
-    temporary.write_text(json.dumps(report, indent=2) + "\n")
-    os.replace(temporary, path)
+    from telesmooth.atomic_files import write_text
+
+    write_text(Path(report_path), json.dumps(report, indent=2) + "\n")
 
 
 def run_relay(
@@ -300,16 +305,9 @@ def parse_link_option(option: str, text: str | None) -> LinkFaultConfig | None:
     """
     if text is None:
         return None
-    try:
-        import yaml
-    except ImportError:   # YAML is a superset of the JSON we document
-        loader, errors = json.loads, (json.JSONDecodeError,)
-    else:
-        loader, errors = yaml.safe_load, (yaml.YAMLError,)
-    try:
-        data = loader(text)
-    except errors as error:
-        raise ValueError(f"{option} = {text!r} is not a YAML/JSON mapping ({error})") from None
+    from telesmooth.diagrams.typed_yaml import load_yaml_text
+    # Bounded plain data (size, nesting, aliases), string keys each given once.
+    data = load_yaml_text(text, source=option)
     try:
         return LinkFaultConfig.from_mapping(data)
     except (TypeError, ValueError) as error:
@@ -346,6 +344,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if math.isnan(args.duration) or args.duration <= 0:
         parser.error(f"--duration = {args.duration!r} must be > 0 s")
+    from telesmooth.atomic_files import Outputs
+
+    with Outputs() as outputs:
+        report = None if args.report is None else outputs.file("--report", args.report)
+        return _relay(parser, args, report)
+
+
+def _exit_with_error(parser, error: Exception) -> None:
+    """One line naming the option (not the function's argument), exit status 2: a bad value
+    is not a usage error, so no usage block."""
+    message = str(error).replace("uplink_in_url", "--in-url").replace("uplink_out_url",
+                                                                     "--out-url")
+    parser.exit(2, f"{parser.prog}: error: {message}\n")
+
+
+def _relay(parser, args, report_path) -> int:
     try:
         config = parse_link_option("--link", args.link) or LinkFaultConfig()
         downlink_config = parse_link_option("--downlink", args.downlink)
@@ -353,17 +367,16 @@ def main(argv: Sequence[str] | None = None) -> int:
             warnings.simplefilter("ignore")   # run_relay warns again, once
             check_relay_urls(args.in_url, args.out_url)
     except ValueError as error:
-        parser.error(str(error).replace("uplink_in_url", "--in-url")
-                     .replace("uplink_out_url", "--out-url"))
+        _exit_with_error(parser, error)
     try:
         run_relay(uplink_in_url=args.in_url, uplink_out_url=args.out_url, config=config,
                   duration_s=args.duration,
                   uplink_channels=tuple(args.uplink_channel or (TELEOP_JOINT_COMMAND,)),
                   downlink_channels=tuple(args.downlink_channel or (ONBOARD_JOINT_STATUS,)),
-                  downlink_config=downlink_config, report_path=args.report,
+                  downlink_config=downlink_config, report_path=report_path,
                   progress=not args.quiet)
     except ValueError as error:   # channels, or a URL LCM cannot open
-        parser.error(str(error))
+        _exit_with_error(parser, error)
     return 0
 
 

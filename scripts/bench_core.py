@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import platform
 import sys
 import time
@@ -27,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from telesmooth.atomic_files import Outputs, write_text
 from telesmooth.datasets.synthetic import synthetic_joint_motion
 from telesmooth.smoothing.fixed_lag import FixedLagSmoother
 from telesmooth.smoothing.kalman import rest_prior, rts_smoother
@@ -264,9 +266,38 @@ def main(argv=None) -> int:
     parser.add_argument("--ticks", type=int, default=2000)
     parser.add_argument("--max-drake-n", type=int, default=10_000,
                         help="largest N solved with the Drake MathematicalProgram too")
-    parser.add_argument("--sim-duration", type=float, default=30.0,
+    parser.add_argument("--sim-duration", type=_number, default=30.0,
                         help="simulated seconds of the whole-chain real-time factor (0 = skip)")
     args = parser.parse_args(argv)
+    for option, value in (("--max-n", args.max_n), ("--repeat", args.repeat),
+                          ("--ticks", args.ticks), ("--max-drake-n", args.max_drake_n)):
+        if value < 1:
+            raise ValueError(f"{option} = {value} must be >= 1")
+    if not (math.isfinite(args.sim_duration) and 0 <= args.sim_duration <= MAX_SIM_DURATION_S):
+        raise ValueError(f"--sim-duration = {args.sim_duration!r} must be within 0 and "
+                         f"{MAX_SIM_DURATION_S:g} s")
+    with Outputs() as outputs:
+        staged = outputs.folder("--out", args.out)
+        table = _run(args, staged)
+    print(table)
+    print(f"wrote {args.out / 'bench_core.json'}", file=sys.stderr)
+    return 0
+
+
+MAX_SIM_DURATION_S = 3600.0
+"""Longest --sim-duration, simulated s (two simulations of it are run)."""
+
+
+def _number(text: str) -> float:
+    from telesmooth.user_input import parse_plain_number
+
+    try:
+        return parse_plain_number(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text[:60]!r} is not a number") from None
+
+
+def _run(args, out: Path) -> str:
     sizes = [n for n in (100, 1_000, 10_000, 100_000, 1_000_000) if n <= args.max_n]
     print("telesmooth core benchmark", file=sys.stderr)
     offline = bench_offline(sizes, args.repeat, args.max_drake_n)
@@ -274,13 +305,10 @@ def main(argv=None) -> int:
     simulation = bench_simulation(args.sim_duration) if args.sim_duration > 0 else []
     report = {"machine": {"python": platform.python_version(), "processor": platform.machine()},
               "offline_cks": offline, "online_step": online, "simulation": simulation}
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "bench_core.json").write_text(json.dumps(report, indent=2) + "\n")
+    write_text(out / "bench_core.json", json.dumps(report, indent=2) + "\n")
     table = _table(offline, online, simulation)
-    (args.out / "bench_core.md").write_text(table)
-    print(table)
-    print(f"wrote {args.out / 'bench_core.json'}", file=sys.stderr)
-    return 0
+    write_text(out / "bench_core.md", table)
+    return table
 
 
 if __name__ == "__main__":

@@ -3,14 +3,27 @@
 Subcommands:
     smooth   smooth a joint trajectory CSV with one method (the contract in the README)
     demo     the main job: a real human demonstration (LASA) through every method, with a report
+    simulate, compare, foresight, experiment, bench   reports on scenarios (``--out`` folders)
+    ground, onboard, keygen, link-relay                the two-process link
 
-Errors in user input are printed as one clear line (exit status 2); nothing is written then.
+Errors, whatever the command (:func:`main`):
+
+* Bad input (``ValueError``, an ``OSError`` on a file) is one line ``telesmooth <command>:
+  error: …`` naming the option or key path as the user wrote it and the value (cut short),
+  at most :data:`MAX_MESSAGE_CHARS` characters, exit status 2.
+* Nothing is written then: every command declares its outputs up front in an
+  :class:`~telesmooth.atomic_files.Outputs` (checked at once, never an input, staged beside
+  their destinations) and they are put in place only when the command succeeds.
+* Anything else is a bug: one line naming the exception, exit status 1, and ``--debug``
+  (anywhere on the command line) shows the traceback.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import re
 import sys
 from pathlib import Path
 
@@ -31,21 +44,69 @@ from telesmooth.smoothing.reduced_q import (
 )
 from telesmooth.smoothing.trajectory_io import read_joint_csv, write_joint_csv
 from telesmooth.smoothing.validation import as_per_joint
+from telesmooth.user_input import name_fields, parse_plain_number, quote
+
+MAX_MESSAGE_CHARS = 300
+"""Longest error line printed (a backstop: messages quote values short at their source)."""
+
+DEBUG_FLAG = "--debug"
 
 
 def parse_per_joint(text: str):
-    """``"0.1"`` → 0.1; ``"0.1,0.2,0.3"`` → [0.1, 0.2, 0.3]; ``"a=0.1,b=0.2"`` → {a: 0.1, b: 0.2}."""
+    """``"0.1"`` → 0.1; ``"0.1,0.2,0.3"`` → [0.1, 0.2, 0.3]; ``"a=0.1,b=0.2"`` → {a: 0.1, b: 0.2}.
+
+    Numbers are plain decimals (:func:`~telesmooth.user_input.parse_plain_number`); a joint
+    named twice is an error, not the last value silently.
+    """
     parts = [part.strip() for part in text.split(",")]
     try:
         if any("=" in part for part in parts):
-            pairs = [part.split("=", 1) for part in parts]
-            return {name.strip(): float(value) for name, value in pairs}
-        values = [float(part) for part in parts]
+            values = {}
+            for part in parts:
+                name, _, value = part.partition("=")
+                name = name.strip()
+                if not name:
+                    raise ValueError
+                if name in values:
+                    raise argparse.ArgumentTypeError(
+                        f"{quote(text)}: joint {quote(name)} is given twice")
+                values[name] = parse_plain_number(value)
+            return values
+        values = [parse_plain_number(part) for part in parts]
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"{text!r}: give a number, a comma list (one per joint) or name=value pairs"
+            f"{quote(text)}: give a number, a comma list (one per joint) or name=value pairs"
         ) from None
     return values[0] if len(values) == 1 else values
+
+
+def number(text: str) -> float:
+    """An option's number: a plain decimal, or inf/nan (which each command refuses by name
+    where they make no sense); not the other spellings ``float()`` takes (``1_0``, ``١``)."""
+    try:
+        return parse_plain_number(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{quote(text)} is not a number") from None
+
+
+def _check_finite(option: str, value: float, *, minimum: float = 0.0,
+                  allow_zero: bool = False) -> float:
+    """``value`` if finite and > ``minimum`` (>= with ``allow_zero``), else a ValueError."""
+    ok = math.isfinite(value) and (value >= minimum if allow_zero else value > minimum)
+    if not ok:
+        rule = f">= {minimum:g}" if allow_zero else f"> {minimum:g}"
+        raise ValueError(f"{option} = {value!r} must be finite and {rule}")
+    return value
+
+
+# Settings fields and the options that set them, for messages of the smoothing core.
+_SMOOTH_OPTIONS = {
+    "max_acceleration": "--acc-max", "max_jerk": "--jerk-max", "max_velocity": "--vel-max",
+    "sigma": "--sigma", "r": "--r", "lag": "--lag", "rho": "--rho", "sigma_min": "--sigma-min",
+    "sigma0": "--sigma-store", "variant": "--variant", "step_rule": "--sigma-step",
+    "trigger": "--trigger", "constraint": "--constraint", "method": "--method",
+    "link_lengths": "--link-lengths",
+}
 
 
 def _add_smooth_parser(subparsers) -> None:
@@ -78,7 +139,7 @@ def _add_smooth_parser(subparsers) -> None:
                    help="offline-cks: 'drake' (Drake MathematicalProgram + Clarabel; the banded "
                    "interior point takes over for a joint Clarabel cannot solve) or 'banded-ip' "
                    "(the banded interior point alone: faster, and robust at 100 Hz)")
-    p.add_argument("--dt", type=float, default=None, metavar="S",
+    p.add_argument("--dt", type=number, default=None, metavar="S",
                    help="expected sample period [s]; the file's time step must match it")
     p.add_argument("--lag", type=int, default=DEFAULT_LAG, metavar="L",
                    help=f"fixed lag in samples for bmfls/online-cks (default {DEFAULT_LAG})")
@@ -90,8 +151,8 @@ def _add_smooth_parser(subparsers) -> None:
                    help="online-cks reduced-Q variant (default A)")
     p.add_argument("--sigma-step", choices=SIGMA_STEP_RULES, default="multiplicative",
                    help="online-cks σ step rule (default multiplicative)")
-    p.add_argument("--rho", type=float, default=0.8, help="multiplicative σ factor (0.8)")
-    p.add_argument("--sigma-min", type=float, default=None, help="σ_min (default 2.5e-4 σ_0)")
+    p.add_argument("--rho", type=number, default=0.8, help="multiplicative σ factor (0.8)")
+    p.add_argument("--sigma-min", type=number, default=None, help="σ_min (default 2.5e-4 σ_0)")
     p.add_argument("--trigger", choices=VIOLATION_TRIGGERS, default="state",
                    help="online-cks trigger: output block states or FD of sent positions")
     p.add_argument("--operator", default=None,
@@ -110,15 +171,58 @@ def _planar_fk(planar_forward_kinematics, link_lengths, q):
 
 
 def run_smooth(args) -> int:
-    trajectory = read_joint_csv(args.input, expected_dt_s=args.dt)
+    from telesmooth.atomic_files import Outputs
+
+    if (args.operator is None) != (args.sigma_store is None):
+        raise ValueError("--operator and --sigma-store go together")
+    if args.operator is not None and not args.operator.strip():
+        raise ValueError(f"--operator = {quote(args.operator)} must be a non-empty name")
+    if args.dt is not None:
+        _check_finite("--dt", args.dt)
+    with Outputs(inputs={"file": args.input}) as outputs:
+        output = outputs.file("-o", args.output)
+        metrics_path = None if args.metrics is None else outputs.file("--metrics", args.metrics)
+        store_path = (None if args.sigma_store is None
+                      else outputs.file("--sigma-store", args.sigma_store))
+        trajectory = read_joint_csv(args.input, expected_dt_s=args.dt)
+        try:
+            result, settings, extra = _smooth(args, trajectory)
+        except ValueError as error:
+            raise ValueError(name_fields(str(error), _SMOOTH_OPTIONS)) from None
+        names = list(trajectory.joint_names)
+        write_joint_csv(output, trajectory.t_s, result.positions, names,
+                        extra_columns={"sent_t": trajectory.t_s + result.sent_delay_s})
+        if metrics_path is not None:
+            metrics = _smooth_metrics(args, trajectory, result, settings, extra)
+            from telesmooth.atomic_files import write_text
+
+            write_text(metrics_path, json.dumps(metrics, indent=2) + "\n")
+        if store_path is not None and result.final_sigma is not None:
+            save_operator_sigma(args.sigma_store, args.operator, names, result.final_sigma,
+                                destination=store_path)
+        elif store_path is not None:     # nothing to store: keep the file as it is
+            outputs.drop(store_path)
+    print(f"wrote {args.output} ({len(trajectory.t_s)} samples, method {args.method})",
+          file=sys.stderr)
+    if args.metrics is not None:
+        print(f"wrote {args.metrics}", file=sys.stderr)
+    if store_path is not None and result.final_sigma is not None:
+        print(f"operator {args.operator!r}: σ = {result.final_sigma.tolist()} saved to "
+              f"{args.sigma_store}", file=sys.stderr)
+    return 0
+
+
+def _smooth(args, trajectory):
+    """Runs the smoothing of ``smooth``; errors name the settings' fields (renamed by the
+    caller to the options)."""
     names = list(trajectory.joint_names)
     settings = SmoothingSettings(
-        max_acceleration=as_per_joint("--acc-max", args.acc_max, len(names), names),
-        max_jerk=as_per_joint("--jerk-max", args.jerk_max, len(names), names),
+        max_acceleration=as_per_joint("max_acceleration", args.acc_max, len(names), names),
+        max_jerk=as_per_joint("max_jerk", args.jerk_max, len(names), names),
         max_velocity=(None if args.vel_max is None
-                      else as_per_joint("--vel-max", args.vel_max, len(names), names)),
-        sigma=as_per_joint("--sigma", args.sigma, len(names), names),
-        r=as_per_joint("--r", args.r, len(names), names),
+                      else as_per_joint("max_velocity", args.vel_max, len(names), names)),
+        sigma=as_per_joint("sigma", args.sigma, len(names), names),
+        r=as_per_joint("r", args.r, len(names), names),
         lag=args.lag,
         constraint=args.constraint,
         rest_at_end=args.rest_at_end,
@@ -127,56 +231,52 @@ def run_smooth(args) -> int:
         reduced_q=ReducedQConfig(variant=args.variant, step_rule=args.sigma_step, rho=args.rho,
                                  sigma_min=args.sigma_min, trigger=args.trigger),
     )
-    if (args.operator is None) != (args.sigma_store is None):
-        raise ValueError("--operator and --sigma-store go together")
+    link_lengths = None
     if args.link_lengths is not None:
-        link_lengths = as_per_joint("--link-lengths", args.link_lengths, len(names), names)
+        link_lengths = as_per_joint("link_lengths", args.link_lengths, len(names), names)
     sigma0 = None
-    if args.operator is not None and args.operator in stored_operators(args.sigma_store):
-        sigma0 = load_operator_sigma(args.sigma_store, args.operator, names)
+    try:
+        stored = [] if args.operator is None else stored_operators(args.sigma_store)
+        if args.operator in stored:
+            sigma0 = load_operator_sigma(args.sigma_store, args.operator, names)
+    except ValueError as error:
+        raise ValueError(f"--sigma-store: {error}") from None
+    if sigma0 is not None:
         print(f"operator {args.operator!r}: σ_0 = {sigma0.tolist()} from {args.sigma_store}",
               file=sys.stderr)
     elif args.operator is not None:
         print(f"operator {args.operator!r}: new operator, σ_0 = --sigma", file=sys.stderr)
     result = smooth_recording(trajectory.positions, trajectory.dt_s, args.method, settings,
                               joint_names=names, sigma0=sigma0)
-    write_joint_csv(args.output, trajectory.t_s, result.positions, names,
-                    extra_columns={"sent_t": trajectory.t_s + result.sent_delay_s})
-    print(f"wrote {args.output} ({len(trajectory.t_s)} samples, method {args.method})",
-          file=sys.stderr)
-    if args.metrics is not None:
-        forward_kinematics = None
-        if args.link_lengths is not None:
-            from functools import partial
+    return result, settings, link_lengths
 
-            from telesmooth.arms.planar import planar_forward_kinematics
 
-            forward_kinematics = partial(_planar_fk, planar_forward_kinematics,
-                                         tuple(link_lengths))
-        metrics = smoothing_metrics(
-            smoothed_positions=result.positions,
-            original_positions=trajectory.positions,
-            dt_s=trajectory.dt_s,
-            max_acceleration=settings.max_acceleration,
-            max_jerk=settings.max_jerk,
-            max_velocity=settings.max_velocity,
-            smoothed_states=result.states,
-            forward_kinematics=forward_kinematics,
-            joint_names=names,
-        )
-        metrics["method"] = args.method
-        metrics["sent_delay_s"] = result.sent_delay_s
-        metrics["details"] = result.details
-        if result.final_sigma is not None:
-            metrics["final_sigma"] = result.final_sigma.tolist()
-        args.metrics.parent.mkdir(parents=True, exist_ok=True)
-        args.metrics.write_text(json.dumps(metrics, indent=2) + "\n")
-        print(f"wrote {args.metrics}", file=sys.stderr)
-    if args.operator is not None and result.final_sigma is not None:
-        save_operator_sigma(args.sigma_store, args.operator, names, result.final_sigma)
-        print(f"operator {args.operator!r}: σ = {result.final_sigma.tolist()} saved to "
-              f"{args.sigma_store}", file=sys.stderr)
-    return 0
+def _smooth_metrics(args, trajectory, result, settings, link_lengths) -> dict:
+    forward_kinematics = None
+    if link_lengths is not None:
+        from functools import partial
+
+        from telesmooth.arms.planar import planar_forward_kinematics
+
+        forward_kinematics = partial(_planar_fk, planar_forward_kinematics,
+                                     tuple(link_lengths))
+    metrics = smoothing_metrics(
+        smoothed_positions=result.positions,
+        original_positions=trajectory.positions,
+        dt_s=trajectory.dt_s,
+        max_acceleration=settings.max_acceleration,
+        max_jerk=settings.max_jerk,
+        max_velocity=settings.max_velocity,
+        smoothed_states=result.states,
+        forward_kinematics=forward_kinematics,
+        joint_names=list(trajectory.joint_names),
+    )
+    metrics["method"] = args.method
+    metrics["sent_delay_s"] = result.sent_delay_s
+    metrics["details"] = result.details
+    if result.final_sigma is not None:
+        metrics["final_sigma"] = result.final_sigma.tolist()
+    return metrics
 
 
 def _add_demo_parser(subparsers) -> None:
@@ -191,10 +291,16 @@ def _add_demo_parser(subparsers) -> None:
 
 
 def run_demo(args) -> int:
+    from telesmooth.atomic_files import Outputs
+    from telesmooth.datasets.lasa import validate_demo_index, validate_shape
     from telesmooth.scripts.demo_report import write_demo_report
 
-    report = write_demo_report(args.out, shape=args.shape, demo_index=args.demo_index)
-    print(f"report: {report}")
+    validate_shape(args.shape, field="--shape")
+    validate_demo_index(args.demo_index, args.shape, field="--demo-index")
+    with Outputs() as outputs:
+        report = write_demo_report(outputs.folder("--out", args.out), shape=args.shape,
+                                   demo_index=args.demo_index)
+    print(f"report: {args.out / report.name}")
     return 0
 
 
@@ -210,13 +316,69 @@ def _add_scenario_arguments(p) -> None:
                         "brakes within the acceleration and jerk limits")
 
 
+_SCENARIO_OPTIONS = {"filename": "--scenario", "scenario_name": "--scenario-name",
+                     "scenario_text": "--scenario-text"}
+
+
+def _scenario_outputs(args, scenario, *extra_inputs):
+    """An :class:`~telesmooth.atomic_files.Outputs` whose inputs are the scenario's files."""
+    from telesmooth.atomic_files import Outputs
+
+    outputs = Outputs(inputs={"--scenario": args.scenario})
+    if scenario.haptic.source == "file":
+        outputs.add_input("haptic.file", scenario.haptic.file)
+    for name, path in extra_inputs:
+        outputs.add_input(name, path)
+    return outputs
+
+
+MAX_SIMULATED_S = 3600.0
+"""Longest simulated run of simulate/compare/foresight/experiment, s (the cost grows with it;
+the LASA demonstrations last 3-20 s)."""
+MAX_PROCESS_RUN_S = 7 * 24 * 3600.0
+"""Longest ``--duration`` of the ground and onboard processes, s (a week; they log in
+memory as they run)."""
+MIN_PLANT_STEP_S = 1e-5
+"""Shortest plant step of the experiment, s."""
+MAX_WORKERS = 64
+"""Most worker processes of the experiment's local Dask cluster."""
+
+
+def _check_at_most(option: str, value: float, limit: float) -> None:
+    if value > limit:
+        raise ValueError(f"{option} = {value!r} s is longer than the limit of {limit:g} s")
+
+
+def _check_run_length(scenario, duration_s, *, uses_duration: bool = True) -> None:
+    """Refuses a simulated run too short for one command to reach the robot and be measured
+    (the metrics compare commands with the operator's targets from the FIFO delay on, and the
+    robot's response a ramp later) or too long."""
+    interpolator = scenario.onboard.interpolator
+    ramp = (interpolator.ramp_duration_s if interpolator.interpolation == "linear" else 0.0)
+    # ... and the tracker samples the response after the ramp, one tracker period later.
+    shortest = (scenario.fifo.delay_s + max(scenario.uplink.period_s, ramp)
+                + scenario.onboard.tracker.period_s)
+    for label, value in (("--duration", duration_s),
+                         ("simulation_duration_s", scenario.simulation_duration_s)):
+        if value is None or not uses_duration:
+            continue
+        if value < shortest - 1e-9:
+            raise ValueError(
+                f"{label} = {value!r} s is shorter than the FIFO delay, an uplink period or "
+                f"the onboard ramp, and a tracker sample ({shortest:g} s): no command's "
+                "response would be measured")
+        _check_at_most(label, value, MAX_SIMULATED_S)
+        return
+    _check_at_most("settle_s", scenario.settle_s, MAX_SIMULATED_S)
+
+
 def _load_scenario(args):
     import dataclasses
 
     from telesmooth.diagrams.scenario import load_scenario
 
     scenario = load_scenario(filename=args.scenario, scenario_name=args.scenario_name,
-                             scenario_text=args.scenario_text)
+                             scenario_text=args.scenario_text, option_names=_SCENARIO_OPTIONS)
     if getattr(args, "on_collision", None) is not None:
         scenario = dataclasses.replace(scenario, fifo=dataclasses.replace(
             scenario.fifo, on_collision=args.on_collision))
@@ -230,7 +392,7 @@ def _add_simulate_parser(subparsers) -> None:
     )
     _add_scenario_arguments(p)
     p.add_argument("--out", type=Path, default=Path("out/simulate"), help="report folder")
-    p.add_argument("--duration", type=float, default=None,
+    p.add_argument("--duration", type=number, default=None,
                    help="simulated time in s (default: the recording + settle time)")
     p.add_argument("--meshcat", action="store_true",
                    help="also save a self-contained Meshcat replay, run.html")
@@ -241,11 +403,13 @@ def run_simulate(args) -> int:
     from telesmooth.scripts.simulate_report import write_simulation_report
 
     scenario = _load_scenario(args)
-    if args.duration is not None and not (args.duration > 0):
-        raise ValueError(f"--duration = {args.duration!r} must be positive")
-    report = write_simulation_report(args.out, scenario, duration_s=args.duration,
-                                     meshcat_html=args.meshcat)
-    print(f"report: {report}")
+    if args.duration is not None:
+        _check_finite("--duration", args.duration)
+    _check_run_length(scenario, args.duration)
+    with _scenario_outputs(args, scenario) as outputs:
+        report = write_simulation_report(outputs.folder("--out", args.out), scenario,
+                                         duration_s=args.duration, meshcat_html=args.meshcat)
+    print(f"report: {args.out / report.name}")
     return 0
 
 
@@ -285,9 +449,14 @@ def _add_foresight_parser(subparsers) -> None:
 def run_foresight(args) -> int:
     from telesmooth.scripts.foresight_report import write_foresight_report
 
-    report = write_foresight_report(args.out, _load_scenario(args), args.method,
-                                    step=args.step)
-    print(f"report: {report}")
+    scenario = _load_scenario(args)
+    _check_run_length(scenario, None, uses_duration=False)
+    if args.step < 1:
+        raise ValueError(f"--step = {args.step} must be an integer >= 1")
+    with _scenario_outputs(args, scenario) as outputs:
+        report = write_foresight_report(outputs.folder("--out", args.out), scenario,
+                                        args.method, step=args.step)
+    print(f"report: {args.out / report.name}")
     return 0
 
 
@@ -301,14 +470,29 @@ def _add_offline_solver_argument(p) -> None:
 def run_compare(args) -> int:
     from telesmooth.scripts.compare_report import write_comparison_report
 
+    from telesmooth.diagrams.comparison import COMPARE_METHODS
+
     scenario = _load_scenario(args)
-    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
-    if not methods:
-        raise ValueError(f"--methods = {args.methods!r} names no method")
-    report = write_comparison_report(args.out, scenario, methods=methods,
-                                     offline_solver=args.solver)
-    print(f"report: {report}")
+    _check_run_length(scenario, None, uses_duration=False)
+    methods = _method_list(args.methods, COMPARE_METHODS)
+    with _scenario_outputs(args, scenario) as outputs:
+        report = write_comparison_report(outputs.folder("--out", args.out), scenario,
+                                         methods=methods, offline_solver=args.solver)
+    print(f"report: {args.out / report.name}")
     return 0
+
+
+def _method_list(text: str, known) -> tuple:
+    """``--methods``: a comma list of known methods, at least one."""
+    from telesmooth.user_input import unknown_choice
+
+    methods = tuple(m.strip() for m in text.split(",") if m.strip())
+    if not methods:
+        raise ValueError(f"--methods = {quote(text)} names no method")
+    for method in methods:
+        if method not in known:
+            raise ValueError(unknown_choice("--methods", method, known, noun="methods"))
+    return methods
 
 
 def _add_experiment_parser(subparsers) -> None:
@@ -335,9 +519,9 @@ def _add_experiment_parser(subparsers) -> None:
     p.add_argument("--c8-shapes", default="all",
                    help="shapes of the C8 study, each over its 7 demonstrations "
                         "('none' to skip; default all)")
-    p.add_argument("--plant-step", type=float, default=defaults.plant_time_step_s,
+    p.add_argument("--plant-step", type=number, default=defaults.plant_time_step_s,
                    help=f"plant time step in s (default {defaults.plant_time_step_s})")
-    p.add_argument("--settle", type=float, default=defaults.settle_s,
+    p.add_argument("--settle", type=number, default=defaults.settle_s,
                    help=f"simulated seconds after the operator stops (default "
                         f"{defaults.settle_s})")
     p.add_argument("--workers", type=int, default=2,
@@ -375,26 +559,33 @@ def _shape_list(text: str, option: str) -> tuple:
         return LASA_SHAPES
     if text in ("none", ""):
         return ()
+    from telesmooth.datasets.lasa import validate_shape
+
     shapes = tuple(part.strip() for part in text.split(",") if part.strip())
-    unknown = [s for s in shapes if s not in LASA_SHAPES]
-    if unknown:
-        raise ValueError(f"{option} = {text!r}: unknown shape(s) {unknown}; the shapes are "
-                         f"{', '.join(LASA_SHAPES)}")
+    for shape in shapes:
+        validate_shape(shape, field=option)
     return shapes
+
+
+_EXPERIMENT_OPTIONS = {"shapes": "--shapes", "demos": "--demos", "methods": "--methods",
+                       "plant_time_step_s": "--plant-step", "settle_s": "--settle",
+                       "sensitivity_shapes": "--sensitivity-shapes",
+                       "c8_shapes": "--c8-shapes", "offline_solver": "--solver",
+                       "speeds": "--speeds", "plants": "--plants", "kf_form": "--kf-form"}
 
 
 def _number_list(text: str, option: str) -> tuple[float, ...]:
     try:
-        values = tuple(float(part) for part in text.split(",") if part.strip())
+        values = tuple(parse_plain_number(part) for part in text.split(",") if part.strip())
     except ValueError:
-        raise ValueError(f"{option} = {text[:60]!r} must be a comma list of numbers") from None
+        raise ValueError(f"{option} = {quote(text)} must be a comma list of numbers") from None
     if not values:
-        raise ValueError(f"{option} = {text[:60]!r} names no value")
+        raise ValueError(f"{option} = {quote(text)} names no value")
     return values
 
 
 def run_experiment_command(args) -> int:
-    from telesmooth.diagrams.experiment import ExperimentConfig
+    from telesmooth.diagrams.experiment import EXPERIMENT_METHODS, ExperimentConfig
     from telesmooth.scripts.experiment_report import (
         merge_experiment_reports,
         parse_demos,
@@ -403,6 +594,13 @@ def run_experiment_command(args) -> int:
     )
 
     base = _load_scenario(args)
+    _check_run_length(base, None, uses_duration=False)
+    _check_finite("--settle", args.settle)
+    _check_at_most("--settle", args.settle, MAX_SIMULATED_S)
+    _check_finite("--plant-step", args.plant_step)
+    if args.plant_step < MIN_PLANT_STEP_S:
+        raise ValueError(f"--plant-step = {args.plant_step!r} s is below {MIN_PLANT_STEP_S} s "
+                         "(each simulated second would take hours)")
     if args.quick:
         shapes, sensitivity, c8 = ("Angle", "CShape"), ("Angle",), ("Angle",)
     else:
@@ -411,25 +609,35 @@ def run_experiment_command(args) -> int:
         c8 = _shape_list(args.c8_shapes, "--c8-shapes")
     if not shapes:
         raise ValueError("--shapes names no shape")
-    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    methods = _method_list(args.methods, EXPERIMENT_METHODS)
     plants = tuple(p.strip() for p in args.plants.split(",") if p.strip())
-    config = ExperimentConfig(shapes=shapes, demos=parse_demos(args.demos), methods=methods,
-                              plant_time_step_s=args.plant_step, settle_s=args.settle,
-                              sensitivity_shapes=sensitivity, c8_shapes=c8,
-                              offline_solver=args.solver,
-                              speeds=_number_list(args.speeds, "--speeds"), plants=plants,
-                              kf_form=args.kf_form)
-    if args.workers < 0:
-        raise ValueError(f"--workers = {args.workers} must be >= 0")
+    try:
+        config = ExperimentConfig(shapes=shapes, demos=parse_demos(args.demos), methods=methods,
+                                  plant_time_step_s=args.plant_step, settle_s=args.settle,
+                                  sensitivity_shapes=sensitivity, c8_shapes=c8,
+                                  offline_solver=args.solver,
+                                  speeds=_number_list(args.speeds, "--speeds"), plants=plants,
+                                  kf_form=args.kf_form)
+    except ValueError as error:
+        raise ValueError(name_fields(str(error), _EXPERIMENT_OPTIONS)) from None
+    if not 0 <= args.workers <= MAX_WORKERS:
+        raise ValueError(f"--workers = {args.workers} must be within 0 and {MAX_WORKERS}")
+    shard = parse_shard(args.shard)
+    sources = None
     if args.merge is not None:
         sources = [part.strip() for part in args.merge.split(",") if part.strip()]
         if not sources:
-            raise ValueError(f"--merge = {args.merge[:60]!r} names no folder")
-        report = merge_experiment_reports(args.out, sources, base, config)
-    else:
-        report = write_experiment_report(args.out, base, config, workers=args.workers,
-                                         scheduler=args.scheduler,
-                                         shard=parse_shard(args.shard))
+            raise ValueError(f"--merge = {quote(args.merge)} names no folder")
+    # The experiment's --out is its journal (records.jsonl grows as tasks finish, and a rerun
+    # continues it), so it is a work folder: checked, made, and removed again only if the
+    # command fails before anything is in it; its report files are written atomically.
+    with _scenario_outputs(args, base) as outputs:
+        out = outputs.work_folder("--out", args.out)
+        if sources is not None:
+            report = merge_experiment_reports(out, sources, base, config)
+        else:
+            report = write_experiment_report(out, base, config, workers=args.workers,
+                                             scheduler=args.scheduler, shard=shard)
     print(f"report: {report}")
     return 0
 
@@ -451,9 +659,9 @@ def _add_process_parsers(subparsers) -> None:
         _add_scenario_arguments(p)
         p.add_argument("--lcm-url", default=None,
                        help=f"LCM URL (default: the scenario's, {DEFAULT_LCM_URL})")
-        p.add_argument("--duration", type=float, default=None,
+        p.add_argument("--duration", type=number, default=None,
                        help="seconds to run (ground default: the recording + settle time)")
-        p.add_argument("--realtime", type=float, default=1.0,
+        p.add_argument("--realtime", type=number, default=1.0,
                        help="target real-time rate (default 1; 0 = as fast as possible)")
         p.add_argument("--out", type=Path, default=None,
                        help="folder for the sent/received commands (CSV)")
@@ -465,13 +673,14 @@ def _add_process_parsers(subparsers) -> None:
                        help="send/accept unsigned commands (anyone on the network can then "
                             "command the robot; for a bench without a key only)")
         if name == "ground":
-            p.add_argument("--resume-wait", type=float, default=2.0,
+            p.add_argument("--resume-wait", type=number, default=2.0,
                            help="seconds to wait for the robot's telemetry at start; if it "
                                 "comes, the ground starts from the robot's commanded pose "
                                 "(a restart continues without a jump); 0 = do not wait")
         p.set_defaults(handler=run_process, process=name)
     p = subparsers.add_parser("keygen", help="write a fresh uplink HMAC key file (mode 0600)")
-    p.add_argument("path", type=Path, help="the key file to create (never overwritten)")
+    p.add_argument("path", help="the key file to create (never overwritten; missing folders "
+                                "are made with mode 0700)")
     p.set_defaults(handler=run_keygen)
     p = subparsers.add_parser(
         "link-relay", add_help=False,
@@ -483,7 +692,7 @@ def _add_process_parsers(subparsers) -> None:
 def run_keygen(args) -> int:
     from telesmooth.link.auth import generate_key_file
 
-    generate_key_file(args.path)
+    generate_key_file(args.path)   # refuses an existing path; makes missing folders 0700
     print(f"uplink key written to {args.path} (mode 0600); give the same file to the ground "
           "and onboard processes with --uplink-key")
     return 0
@@ -492,36 +701,51 @@ def run_keygen(args) -> int:
 def run_process(args) -> int:
     from telesmooth.scripts.processes import run_ground, run_onboard
 
+    from telesmooth.diagrams.channels import check_lcm_url
+
     scenario = _load_scenario(args)
-    url = args.lcm_url or scenario.lcm_url
-    if args.duration is not None and not args.duration > 0:
-        raise ValueError(f"--duration = {args.duration!r} must be positive")
-    if not args.realtime >= 0:
-        raise ValueError(f"--realtime = {args.realtime!r} must be >= 0")
+    url = check_lcm_url("--lcm-url" if args.lcm_url else "lcm_url (scenario)",
+                        args.lcm_url or scenario.lcm_url)
+    _check_at_most("settle_s", scenario.settle_s, MAX_SIMULATED_S)
+    if args.duration is not None:
+        _check_finite("--duration", args.duration)
+        _check_at_most("--duration", args.duration, MAX_PROCESS_RUN_S)
+    _check_finite("--realtime", args.realtime, allow_zero=True)
+    if args.process == "ground":
+        _check_finite("--resume-wait", args.resume_wait, allow_zero=True)
+    elif args.duration is None:
+        raise ValueError("onboard needs --duration (seconds to run)")
     key = None
     if args.no_auth:
         print(f"telesmooth {args.process}: warning: --no-auth: uplink commands are not "
               "authenticated; anyone on the network can command the robot", file=sys.stderr)
     else:
         from telesmooth.link.auth import load_key
-        key = load_key(args.uplink_key)
-    if args.process == "ground":
-        if not args.resume_wait >= 0:
-            raise ValueError(f"--resume-wait = {args.resume_wait!r} must be >= 0")
-        return run_ground(scenario, lcm_url=url, duration_s=args.duration,
-                          realtime=args.realtime, out=args.out, uplink_key=key,
-                          resume_wait_s=args.resume_wait)
-    if args.duration is None:
-        raise ValueError("onboard needs --duration (seconds to run)")
-    return run_onboard(scenario, lcm_url=url, duration_s=args.duration,
-                       realtime=args.realtime, out=args.out, uplink_key=key)
+
+        try:
+            key = load_key(args.uplink_key)
+        except ValueError as error:   # names the file or the variable, never the key
+            raise ValueError(f"--uplink-key: {error}" if args.uplink_key is not None
+                             else str(error)) from None
+    with _scenario_outputs(args, scenario, ("--uplink-key", args.uplink_key)) as outputs:
+        out = None if args.out is None else outputs.folder("--out", args.out)
+        if args.process == "ground":
+            return run_ground(scenario, lcm_url=url, duration_s=args.duration,
+                              realtime=args.realtime, out=out, uplink_key=key,
+                              resume_wait_s=args.resume_wait)
+        return run_onboard(scenario, lcm_url=url, duration_s=args.duration,
+                           realtime=args.realtime, out=out, uplink_key=key)
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="telesmooth",
         description="Acceleration/jerk-limited Kalman smoothing for delayed teleoperation.",
+        epilog=f"{DEBUG_FLAG} (anywhere on the command line): on an unexpected error, print "
+               "the full traceback instead of one line.",
     )
+    parser.add_argument(DEBUG_FLAG, action="store_true",
+                        help="print the traceback of an unexpected error")
     subparsers = parser.add_subparsers(dest="command", required=True)
     _add_smooth_parser(subparsers)
     _add_demo_parser(subparsers)
@@ -534,24 +758,77 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def one_line(message: str, limit: int = MAX_MESSAGE_CHARS) -> str:
+    """``message`` on one line (runs of white space become one space), cut to ``limit``."""
+    text = re.sub(r"\s+", " ", str(message)).strip()
+    return text if len(text) <= limit else text[:limit - 1] + "…"
+
+
+def _describe(error: BaseException) -> str:
+    """An expected error as its message; an ``OSError`` as "<file>: <reason>"."""
+    if isinstance(error, OSError) and error.strerror:
+        where = error.filename if error.filename is not None else ""
+        return f"{quote(str(where))}: {error.strerror}" if where else error.strerror
+    return str(error)
+
+
+_UNEXPECTED = (RecursionError, NotImplementedError, MemoryError)
+"""Subclasses of the expected types that mean a bug or a missing bound, not bad input."""
+
+
+def run_reporting_errors(command: str, handler, *, debug: bool = False) -> int:
+    """Runs ``handler()``; returns its status, or prints one line for an error (see the
+    module docstring): 2 for bad input, 1 for a bug (with the hint to rerun with
+    ``--debug``), 130 for Ctrl-C. With ``debug`` every error raises, traceback and all."""
+    prefix = f"telesmooth {command}:"
+    try:
+        return handler()
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        print(f"{prefix} interrupted", file=sys.stderr)
+        return 130
+    except _UNEXPECTED as error:
+        if debug:
+            raise
+        _report_bug(prefix, error)
+        return 1
+    except (ValueError, RuntimeError, OSError) as error:
+        if debug:
+            raise
+        head = f"{prefix} error: "
+        print(head + one_line(_describe(error), MAX_MESSAGE_CHARS - len(head)), file=sys.stderr)
+        return 2
+    except Exception as error:  # noqa: BLE001 - anything else is a bug, said in one line
+        if debug:
+            raise
+        _report_bug(prefix, error)
+        return 1
+
+
+def _report_bug(prefix: str, error: BaseException) -> None:
+    hint = f"; this is a bug: rerun with {DEBUG_FLAG} for the traceback and report it"
+    head = f"{prefix} internal error: {type(error).__name__}: "
+    print(head + one_line(str(error), MAX_MESSAGE_CHARS - len(head) - len(hint)) + hint,
+          file=sys.stderr)
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    debug = DEBUG_FLAG in argv
+    argv = [arg for arg in argv if arg != DEBUG_FLAG]
     if argv[:1] == ["bench"]:
         # The benchmark has its own parser (also `python -m telesmooth.scripts.bench_core`).
         from telesmooth.scripts.bench_core import main as bench_main
 
-        return bench_main(argv[1:])
+        return run_reporting_errors("bench", lambda: bench_main(argv[1:]), debug=debug)
     if argv[:1] == ["link-relay"]:
         from telesmooth.link.relay import main as relay_main
 
-        return relay_main(argv[1:])
+        return run_reporting_errors("link-relay", lambda: relay_main(argv[1:]), debug=debug)
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:
-        return args.handler(args)
-    except (ValueError, RuntimeError) as error:
-        print(f"telesmooth {args.command}: error: {error}", file=sys.stderr)
-        return 2
+    return run_reporting_errors(args.command, lambda: args.handler(args), debug=debug)
 
 
 if __name__ == "__main__":

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from telesmooth.atomic_files import atomic_write, write_text
 from telesmooth.diagrams.comparison import (
     COMPARE_METHODS,
     LEAST_DEFORMATION,
@@ -99,7 +100,7 @@ def _write_packets(out: Path, comparison: Comparison) -> None:
     runs = comparison.runs
     length = max(len(run.packets) for run in runs.values())
     header = ["t"] + [f"{method}:{joint}" for method in runs for joint in names]
-    with (out / "packets.csv").open("w", newline="") as handle:
+    with atomic_write(out / "packets.csv", "w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(header)
         for k in range(length):
@@ -285,10 +286,10 @@ def write_comparison_report(out_dir, scenario, *, methods=COMPARE_METHODS,
         "table": rows,
         "methods": {name: run.metrics for name, run in comparison.runs.items()},
     }
-    (out / "comparison.json").write_text(json.dumps(data, indent=2, default=float) + "\n")
-    (out / "table.md").write_text(table_markdown(rows) + "\n")
+    write_text(out / "comparison.json", json.dumps(data, indent=2, default=float) + "\n")
+    write_text(out / "table.md", table_markdown(rows) + "\n")
     _write_packets(out, comparison)
     figures = _write_figures(out, comparison)
     report = out / "report.md"
-    report.write_text(_report_text(comparison, rows, figures, plant))
+    write_text(report, _report_text(comparison, rows, figures, plant))
     return report

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from telesmooth.atomic_files import write_text
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_forward_kinematics
 from telesmooth.datasets.lasa import lasa_operator_session
 from telesmooth.scripts.figures import FigureWriter
@@ -113,10 +114,10 @@ def write_demo_report(out_dir, *, shape: str = "Angle", demo_index: int = 0) -> 
         "dt_s": dt, "max_acceleration_rad_per_s2": DEMO_MAX_ACCELERATION,
         "max_jerk_rad_per_s3": DEMO_MAX_JERK, "methods": metrics,
     }
-    (out / "metrics.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    write_text(out / "metrics.json", json.dumps(summary, indent=2, default=float) + "\n")
     figures = _write_figures(out, t, z, results, names, forward_kinematics)
     report = out / "report.md"
-    report.write_text(_report_text(summary, figures))
+    write_text(report, _report_text(summary, figures))
     return report
 
 

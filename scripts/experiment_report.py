@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from telesmooth.atomic_files import write_text
+from telesmooth.user_input import MAX_JSON_BYTES, read_file_bytes
 from telesmooth.diagrams.claims import (
     APPROXIMATE_LIMIT,
     C1_QUANTILE,
@@ -372,6 +374,8 @@ def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figure
 
 GRID_FILE = "grid.json"
 RECORDS_FILE = "records.jsonl"
+MAX_RECORDS_BYTES = 512 << 20
+"""Largest records.jsonl read, bytes."""
 
 
 READS_RECORDS_ONLY = ("scripts", "tests", "docs", "diagrams/claims.py")
@@ -418,7 +422,9 @@ def _check_grid(out: Path, grid: dict) -> None:
     path = out / GRID_FILE
     if path.exists():
         try:
-            held = json.loads(path.read_text())
+            held = json.loads(read_file_bytes(path, what=str(path), max_bytes=MAX_JSON_BYTES))
+            if not isinstance(held, dict):
+                raise ValueError("not a mapping")
         except (OSError, ValueError) as error:
             raise ValueError(f"--out {str(out)!r}: {GRID_FILE} cannot be read ({error}); "
                              "use another folder") from None
@@ -434,9 +440,7 @@ def _check_grid(out: Path, grid: dict) -> None:
                 f"{', '.join(changed) or 'the grid'}); a changed configuration is not mixed "
                 "in: use another folder")
         return
-    temporary = out / f".{GRID_FILE}.tmp"
-    temporary.write_text(json.dumps(grid, indent=1) + "\n")
-    os.replace(temporary, path)
+    write_text(path, json.dumps(grid, indent=1) + "\n")
 
 
 def read_records(out: Path) -> dict:
@@ -446,12 +450,15 @@ def read_records(out: Path) -> dict:
     records = {}
     if not path.exists():
         return records
-    with path.open() as handle:
-        for line in handle:
-            if not line.endswith("\n"):
-                break                       # cut short: the task is not done
+    data = read_file_bytes(path, what=str(path), max_bytes=MAX_RECORDS_BYTES)
+    lines = data.split(b"\n")
+    for number, line in enumerate(lines[:-1], start=1):   # the last piece: cut short or b""
+        try:
             record = json.loads(line)
             records[record["key"]] = record
+        except (ValueError, TypeError, KeyError) as error:
+            raise ValueError(f"{path}: line {number} is not a task record ({error}); use "
+                             "another --out folder") from None
     return records
 
 
@@ -602,8 +609,8 @@ def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, 
             "cells": {cell: {k: v for k, v in summary.items() if k != "records"}
                       for cell, summary in summaries.items()},
             "claims": claims, "records": [r for s in summaries.values() for r in s["records"]]}
-    (out / "experiment.json").write_text(json.dumps(data, indent=1, default=float) + "\n")
-    (out / "table.md").write_text("\n\n".join(
+    write_text(out / "experiment.json", json.dumps(data, indent=1, default=float) + "\n")
+    write_text(out / "table.md", "\n\n".join(
         f"## {cell}\n\n" + main_table_markdown(summary)
         for cell, summary in summaries.items()) + "\n")
     figures = {cell: _write_figures(out, summary, prefix=_slug(cell) if len(summaries) > 1
@@ -615,7 +622,7 @@ def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, 
         text = (f"> **Incomplete:** {missing} of {len(tasks)} tasks are not in this folder "
                 "yet (a shard, or an interrupted run: rerun with the same --out to finish, "
                 "or --merge the shards).\n\n" + text)
-    report.write_text(text)
+    write_text(report, text)
     for cell, cell_claims in claims.items():
         progress(f"{cell}: " + ", ".join(f"{name} {claim['verdict']}"
                                          for name, claim in cell_claims.items()))

@@ -25,8 +25,13 @@ class FigureWriter:
         """Lays out, writes ``out/<prefix><name>`` and closes ``fig``."""
         import matplotlib.pyplot as plt
 
+        from telesmooth.atomic_files import atomic_write
+
         name = self.prefix + name
         fig.tight_layout()
-        fig.savefig(self.out / name, dpi=self.dpi)
-        plt.close(fig)
+        try:
+            with atomic_write(self.out / name, "wb") as handle:
+                fig.savefig(handle, dpi=self.dpi, format=Path(name).suffix[1:] or None)
+        finally:
+            plt.close(fig)
         self.figures.append((title + self.title_suffix, name))

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from telesmooth.atomic_files import write_text
 from telesmooth.diagrams.comparison import COMPARE_METHODS, method_settings, operator_samples
 from telesmooth.diagrams.simulation import tool_positions
 from telesmooth.scripts.figures import FigureWriter
@@ -223,8 +224,8 @@ def write_foresight_report(out_dir, scenario, method: str = "online-hard", *, st
     study = foresight_study(scenario, method, step=step, progress=progress)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "foresight.json").write_text(json.dumps(study, indent=1, default=float) + "\n")
+    write_text(out / "foresight.json", json.dumps(study, indent=1, default=float) + "\n")
     figures = _figure(out, study)
     report = out / "report.md"
-    report.write_text(_report_text(study, figures))
+    write_text(report, _report_text(study, figures))
     return report

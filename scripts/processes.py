@@ -110,8 +110,10 @@ def robot_commanded_pose(lcm_url: str, scenario, wait_s: float):
 
 
 def _write_rows(path: Path, header, rows) -> None:
+    from telesmooth.atomic_files import atomic_write
+
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as handle:
+    with atomic_write(path, "w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(header)
         for row in rows:
@@ -181,19 +183,29 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
     from telesmooth.systems.laser_tracker import tracker_record
     from telesmooth.systems.link_guard import GUARD_MODES
 
-    import lcm as lcm_module
+    from telesmooth.diagrams.channels import TELEOP_JOINT_COMMAND
+    from telesmooth.link.udpm_receiver import UdpmReceiver
 
     scenario = _with_authentication(scenario, uplink_key)
     lcm = DrakeLcm(_check_url(lcm_url))
-    # The uplink through the lcm package: its subscription queues a burst of packets
-    # (DrakeLcm's keeps one). memq:// is per instance, so there the DrakeLcm is used.
-    uplink_lcm = lcm_module.LCM(lcm_url) if lcm_url.startswith("udpm://") else None
+    # The uplink through a socket of our own with a sized receive buffer, which counts what
+    # the kernel drops (DrakeLcm's subscription keeps one packet, an lcm.LCM subscription drops
+    # a burst beyond its queue, both uncounted). memq:// is per instance: there DrakeLcm.
+    uplink_lcm = (UdpmReceiver(lcm_url, TELEOP_JOINT_COMMAND) if lcm_url.startswith("udpm://")
+                  else None)
+    if uplink_lcm is not None:
+        _log(f"onboard: uplink receive buffer {uplink_lcm.receive_buffer_bytes} bytes")
     handles = MakeOnboardDiagram(scenario, lcm=lcm, uplink_key=uplink_key,
                                  uplink_lcm=uplink_lcm)
     _log(f"onboard: listening on {lcm_url} for {duration_s:.2f} s (authentication "
          f"{scenario.command_receiver.authentication})")
     simulator = Simulator(handles.diagram)
     receiver, guard = handles.onboard.receiver, handles.onboard.guard
+    subscriber = handles.diagram.GetSubsystemByName("joint_command_subscriber")
+
+    def dropped(root) -> float:
+        context = subscriber.GetMyContextFromRoot(root)
+        return float(subscriber.get_dropped_count_output_port().Eval(context)[0])
 
     def link_text():
         root = simulator.get_context()
@@ -202,7 +214,9 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
         mode = GUARD_MODES[int(guard.get_guard_mode_output_port().Eval(
             guard.GetMyContextFromRoot(root))[0])]
         last = receiver.get_last_rejection_output_port().Eval(context)
+        lost = dropped(root)
         return (f"guard {mode}; packets " + ", ".join(f"{k} {v}" for k, v in counts.items())
+                + ("" if lost != lost else f", lost before decoding {int(lost)}")
                 + (f"; last rejection: {last}" if last else ""))
 
     _advance(simulator, duration_s, realtime, "onboard", status=link_text)
@@ -210,8 +224,12 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
         context = simulator.get_context()
         names = handles.onboard.arm.joint_names
         write_onboard_logs(Path(out), handles, context, names)
-        counts = receiver.rejection_counts(receiver.GetMyContextFromRoot(context))
-        (Path(out) / "onboard_counts.json").write_text(json.dumps(counts, indent=1))
+        counts = dict(receiver.rejection_counts(receiver.GetMyContextFromRoot(context)))
+        lost = dropped(context)
+        counts["lost_before_decoding"] = None if lost != lost else int(lost)
+        from telesmooth.atomic_files import write_text
+
+        write_text(Path(out) / "onboard_counts.json", json.dumps(counts, indent=1))
         tracker = tracker_record(handles.logs["tracker"].FindLog(context).data().T)
         _write_rows(Path(out) / "onboard_telemetry.csv",
                     ["t"] + [f"q_link_{j}" for j in names] + ["tool_x", "tool_y", "tool_z"],

@@ -38,7 +38,9 @@ def main(argv=None) -> int:
         print(f"render_diagram: {error}", file=sys.stderr)
         return 2
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(svg, encoding="utf-8")
+    from telesmooth.atomic_files import write_text
+
+    write_text(args.out, svg)
     print(f"wrote {args.out} ({len(svg.encode('utf-8'))} bytes)", file=sys.stderr)
     return 0
 

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from telesmooth.atomic_files import atomic_write, write_text
 from telesmooth.diagrams.simulation import (
     SimulationRecord,
     plant_text,
@@ -42,7 +43,7 @@ def _log(message: str) -> None:
 
 
 def _write_csv(path: Path, header, rows) -> None:
-    with path.open("w", newline="") as handle:
+    with atomic_write(path, "w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(header)
         for row in rows:
@@ -257,9 +258,9 @@ def write_simulation_report(out_dir, scenario, *, duration_s=None, meshcat_html=
 
         save_meshcat_recording(meshcat, out / "run.html", record.duration_s)
     metrics = run_metrics(record)
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     _write_tables(out, record)
     figures = _write_figures(out, record, metrics)
     report = out / "report.md"
-    report.write_text(_report_text(metrics, figures, meshcat_html=meshcat is not None))
+    write_text(report, _report_text(metrics, figures, meshcat_html=meshcat is not None))
     return report

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from telesmooth.smoothing.model import SCALED_TRANSITION, STATE_SIZE, JerkModel
+from telesmooth.smoothing.model import MAX_LAG, SCALED_TRANSITION, STATE_SIZE, JerkModel
 from telesmooth.smoothing.validation import check_positive_int, check_trajectory
 
 FIXED_LAG_METHODS = ("recursion", "superstate")
@@ -85,6 +85,8 @@ class FixedLagSmoother:
             raise ValueError(f"method = {method!r} must be one of {FIXED_LAG_METHODS}")
         self.model = model
         self.lag = check_positive_int("lag", lag, minimum=0)
+        if self.lag > MAX_LAG:
+            raise ValueError(f"lag = {self.lag} must be at most {MAX_LAG} samples")
         self.method = method
         if rest_covariance is None:
             rest_covariance = np.zeros((STATE_SIZE, STATE_SIZE))

@@ -43,7 +43,7 @@ from telesmooth.smoothing.kalman import (
     rts_smoother,
     start_prior,
 )
-from telesmooth.smoothing.model import DEFAULT_LAG, DEFAULT_R, DEFAULT_SIGMA, JerkModel
+from telesmooth.smoothing.model import DEFAULT_LAG, DEFAULT_R, DEFAULT_SIGMA, MAX_LAG, JerkModel
 from telesmooth.smoothing.online_hard import online_hard_run
 from telesmooth.smoothing.offline import solve_offline_cks
 from telesmooth.smoothing.offline_hard import solve_offline_hard
@@ -159,6 +159,11 @@ def smooth_recording(
     num_joints = z.shape[1]
     dt_s = check_positive_scalar("dt_s", dt_s)
     lag = check_positive_int("lag", settings.lag, minimum=0)
+    if lag > max(len(z), DEFAULT_LAG) or lag > MAX_LAG:
+        # Past the recording's length every estimate already sees all of it; a longer lag
+        # only adds held samples, at a cost that grows like L² per sample.
+        raise ValueError(f"lag = {lag} samples is longer than the recording ({len(z)} samples)"
+                         if lag <= MAX_LAG else f"lag = {lag} must be at most {MAX_LAG} samples")
     model = JerkModel.make(dt_s, settings.sigma, settings.r, num_joints=num_joints,
                            joint_names=joint_names)
     if method == "original":

@@ -176,3 +176,7 @@ DEFAULT_SIGMA = 4e-4
 """σ_0 for f_c ≈ 0.36 Hz at Δt = 0.25 s, r = 1e-6 (SPEC §8)."""
 DEFAULT_LAG = 3
 """L = 0.75 s / 0.25 s (SPEC §5.1)."""
+MAX_LAG = 1000
+"""Longest fixed lag accepted, samples: a fixed-lag step costs about L² (the superstate's L³),
+so L = 10⁴ on a 40-sample recording takes minutes for nothing (at 4 Hz, 1000 samples is
+250 s of lag; at 100 Hz, 10 s)."""

@@ -22,14 +22,15 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from telesmooth.atomic_files import write_text
 from telesmooth.smoothing.fixed_lag import FixedLagSmoother, FixedLagState
 from telesmooth.smoothing.model import JerkModel
+from telesmooth.user_input import MAX_JSON_BYTES, MAX_JSON_DEPTH, quote, read_file_bytes
 from telesmooth.smoothing.validation import (
     as_per_joint,
     check_positive_int,
@@ -257,13 +258,20 @@ class OnlineCks:
 SIGMA_FILE_FORMAT = "telesmooth-operator-sigma/1"
 
 
-def save_operator_sigma(path, operator: str, joint_names, sigma) -> None:
+def save_operator_sigma(path, operator: str, joint_names, sigma, *, destination=None) -> None:
     """Stores the σ an operator reached, per joint, in a JSON file (other operators kept).
 
-    The file is replaced atomically, so an interrupted write never loses stored operators.
+    The file is replaced atomically (:func:`~telesmooth.atomic_files.write_text`), so an
+    interrupted write never loses stored operators.
+
+    Args:
+        path: The σ store (read if it exists).
+        operator, joint_names, sigma: What to store.
+        destination: Where to write the updated store; default ``path`` (e.g. a staged
+            temporary file of :class:`~telesmooth.atomic_files.Outputs`).
     """
     if not isinstance(operator, str) or not operator.strip():
-        raise ValueError(f"operator = {operator!r} must be a non-empty name")
+        raise ValueError(f"operator = {quote(operator)} must be a non-empty name")
     names = list(joint_names)
     values = as_per_joint("sigma", sigma, len(names), names)
     path = Path(path)
@@ -271,9 +279,8 @@ def save_operator_sigma(path, operator: str, joint_names, sigma) -> None:
     if path.exists():
         data = _read_sigma_file(path)
     data["operators"][operator] = {name: float(v) for name, v in zip(names, values)}
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
-    os.replace(tmp, path)
+    write_text(path if destination is None else destination,
+               json.dumps(data, indent=2, sort_keys=True) + "\n")
 
 
 def load_operator_sigma(path, operator: str, joint_names) -> np.ndarray:
@@ -300,21 +307,56 @@ def stored_operators(path) -> list[str]:
 
 
 def _read_sigma_file(path: Path) -> dict:
+    """The σ store, read within bounds (a regular UTF-8 file of at most ``MAX_JSON_BYTES``,
+    nesting at most ``MAX_JSON_DEPTH``; a key given twice in one object is an error)."""
+    raw = read_file_bytes(path, what=f"{path}", max_bytes=MAX_JSON_BYTES)
     try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as error:
+        data = json.loads(raw.decode("utf-8"), object_pairs_hook=_unique_keys)
+    except UnicodeDecodeError as error:
+        raise ValueError(f"{path}: not a valid sigma file (not UTF-8: {error.reason} at byte "
+                         f"{error.start})") from None
+    except (json.JSONDecodeError, _DuplicateKey) as error:
         raise ValueError(f"{path}: not a valid sigma file ({error})") from None
+    except RecursionError:
+        raise ValueError(f"{path}: not a valid sigma file (nested too deeply)") from None
+    if _json_depth(data) > MAX_JSON_DEPTH:
+        raise ValueError(f"{path}: not a valid sigma file (nested deeper than "
+                         f"{MAX_JSON_DEPTH} levels)")
     if not isinstance(data, dict) or data.get("format") != SIGMA_FILE_FORMAT:
         raise ValueError(f"{path}: format must be {SIGMA_FILE_FORMAT!r}")
     if not isinstance(data.get("operators"), dict):
         raise ValueError(f"{path}: 'operators' must be a mapping")
     for name, joints in data["operators"].items():
         if not isinstance(joints, dict):
-            raise ValueError(f"{path}: operator {name!r} must map joint names to sigma")
+            raise ValueError(f"{path}: operator {quote(name)} must map joint names to sigma")
         for joint, value in joints.items():
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+            if (isinstance(value, bool) or not isinstance(value, (int, float))
+                    or not math.isfinite(value) or value <= 0):
                 raise ValueError(
-                    f"{path}: sigma for operator {name!r}, joint {joint!r} = {value!r} "
-                    "must be finite and > 0"
+                    f"{path}: sigma for operator {quote(name)}, joint {quote(joint)} = "
+                    f"{quote(value)} must be finite and > 0"
                 )
     return data
+
+
+class _DuplicateKey(ValueError):
+    pass
+
+
+def _unique_keys(pairs) -> dict:
+    """json object hook: a key given twice is an error, not the last value silently."""
+    data = {}
+    for key, value in pairs:
+        if key in data:
+            raise _DuplicateKey(f"key {quote(key)} is given twice")
+        data[key] = value
+    return data
+
+
+def _json_depth(data) -> int:
+    depth, level = 0, [data]
+    while level:
+        depth += 1
+        level = [child for item in level if isinstance(item, (dict, list))
+                 for child in (item.values() if isinstance(item, dict) else item)]
+    return depth

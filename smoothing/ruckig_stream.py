@@ -14,9 +14,12 @@ imported only when this method runs.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from telesmooth.smoothing.validation import as_per_joint, check_positive_scalar, check_trajectory
+from telesmooth.user_input import quote
 
 __all__ = ["RUCKIG_SYNCHRONIZATIONS", "RUCKIG_TARGETS", "UNLIMITED_VELOCITY", "ruckig_stream"]
 
@@ -97,12 +100,71 @@ def ruckig_stream(positions, dt_s: float, *, max_acceleration, max_jerk, max_vel
         request.target_position = z[k].tolist()
         if target == "moving":
             request.target_velocity = velocity[k].tolist()
-        status = generator.update(request, result)
+        try:
+            status = generator.update(request, result)
+        except Exception as error:  # noqa: BLE001 - see _refusal
+            status = error
         if status not in (ruckig.Result.Working, ruckig.Result.Finished):
-            raise ValueError(f"Ruckig refused sample {k} (target {z[k].tolist()}): {status}")
+            joint = _refused_joint(ruckig, request, dt_s, status)
+            raise ValueError(_refusal(k, dt_s, z[k], status, joint, joint_names))
         states[k, :, 0] = result.new_position
         states[k, :, 1] = result.new_velocity
         states[k, :, 2] = result.new_acceleration
         states[k, :, 3] = result.new_jerk
         result.pass_to_input(request)
     return states
+
+
+_RUCKIG_DOF = re.compile(r"dof:\s*(\d+)")
+
+
+def _refused_joint(ruckig, request, dt_s: float, error) -> int | None:
+    """The joint Ruckig could not plan: the "dof" its error names, else the first joint that
+    fails alone (each planned as a one-joint problem from the same state), else the joint
+    whose motion alone lasts longest (e.g. -101, a too long motion, is raised for the joints
+    together when each alone plans), else None."""
+    match = _RUCKIG_DOF.search(str(error))
+    if match is not None:
+        return int(match.group(1))
+    durations = []
+    for joint in range(request.degrees_of_freedom):
+        alone = ruckig.InputParameter(1)
+        for name in ("current_position", "current_velocity", "current_acceleration",
+                     "target_position", "target_velocity", "target_acceleration",
+                     "max_velocity", "max_acceleration", "max_jerk"):
+            setattr(alone, name, [getattr(request, name)[joint]])
+        output = ruckig.OutputParameter(1)
+        try:
+            status = ruckig.Ruckig(1, dt_s).update(alone, output)
+        except Exception:  # noqa: BLE001 - a failure is the answer
+            return joint
+        if status not in (ruckig.Result.Working, ruckig.Result.Finished):
+            return joint
+        durations.append(output.trajectory.duration)
+    return int(np.argmax(durations)) if durations else None
+
+
+def _refusal(k: int, dt_s: float, target, error, index, joint_names) -> str:
+    """The message for Ruckig refusing sample ``k`` (for joint ``index`` if known).
+
+    Ruckig refuses by raising ``RuckigError`` (its text names the step and the "dof", our
+    joint), by returning an error result, or, for a result its Python enum lacks (e.g.
+    ErrorTrajectoryDuration = -101: the motion would last longer than Ruckig allows), by
+    raising ``ValueError("-101 is not a valid Result")``."""
+    text = str(error)
+    joint = ""
+    if index is not None and index < len(target):
+        name = joint_names[index] if joint_names is not None and index < len(joint_names) \
+            else None
+        joint = f" for joint {index}" + (f" ({name!r})" if name is not None else "")
+        target = target[index]
+    if "-101" in text:
+        reason = "the motion would last longer than Ruckig allows (a step far too large "\
+                 "for the limits)"
+    elif isinstance(error, Exception):
+        reason = "Ruckig found no motion within the limits (limits too small or values too " \
+                 "large for its numerics)"
+    else:
+        reason = f"Ruckig returned {error}"
+    shown = quote(np.round(target, 6).tolist())
+    return f"ruckig: sample {k} (t = {k * dt_s:g} s), target {shown}{joint}: {reason}"

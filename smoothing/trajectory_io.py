@@ -6,8 +6,8 @@ every value (row number as in the file, column name, value), and the time step.
 
 from __future__ import annotations
 
+import array
 import csv
-import io
 import math
 import re
 import sys
@@ -15,6 +15,18 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from telesmooth.atomic_files import atomic_write
+from telesmooth.user_input import (
+    ASCII_BLANKS,
+    MAX_CSV_BYTES,
+    MAX_CSV_COLUMNS,
+    MAX_CSV_LINE_CHARS,
+    MAX_CSV_ROWS,
+    parse_plain_number,
+    quote,
+    read_file_bytes,
+)
 
 TIME_STEP_RTOL = 1e-6
 """Relative tolerance on the uniformity of the time column."""
@@ -26,6 +38,13 @@ still checked to ``TIME_STEP_RTOL``."""
 _LINE_BREAK = re.compile(r"\r\n|\r|\n")
 """What ends a physical line, for csv.reader on a file opened with ``newline=""``."""
 _LINE_BREAK_BYTES = re.compile(rb"\r\n|\r|\n")
+_PHYSICAL_LINE = re.compile(r"[^\r\n]*(?:\r\n|\r|\n)|[^\r\n]+\Z")
+_LONG_LINE = re.compile(r"[^\r\n]{%d}" % (MAX_CSV_LINE_CHARS + 1))
+RESERVED_JOINT_NAMES = ("sent_t",)
+"""Columns the smoothed output adds after the joints; no joint may be named so."""
+MAX_ABS_JOINT_RAD = 1e6
+"""Largest |joint value| read, rad (159 155 turns): beyond it the numbers are not an angle
+(and the solvers' arithmetic would overflow on their squares and cubes)."""
 DEGREES_SUSPICION_RAD = 4.0 * math.pi
 """Joint values beyond this suggest degrees instead of radians (a warning, not an error)."""
 
@@ -53,17 +72,21 @@ class JointTrajectory:
         return len(self.joint_names)
 
 
-def read_joint_csv(path, *, expected_dt_s: float | None = None) -> JointTrajectory:
+def read_joint_csv(path, *, expected_dt_s: float | None = None,
+                   reserved_names=RESERVED_JOINT_NAMES) -> JointTrajectory:
     """Reads and validates a joint trajectory CSV.
 
     Args:
         path: the file.
         expected_dt_s: if given, the file's time step must equal it (relative 1e-6).
+        reserved_names: column names a joint may not have (by default ``sent_t``, the
+            column the smoothed output adds: a joint of that name would be ambiguous there).
 
     Raises:
-        ValueError: missing/odd header, duplicate or empty joint names, short rows, values that
-            are not finite numbers, fewer than 2 rows, a non-increasing or non-uniform time
-            column, or a time step different from ``expected_dt_s``.
+        ValueError: missing/odd header, duplicate, empty or reserved joint names, short rows,
+            values that are not finite plain decimal numbers, fewer than 2 rows, a
+            non-increasing or non-uniform time column, a time step different from
+            ``expected_dt_s``, or a file beyond the bounds of :func:`read_csv_table`.
     """
     path = Path(path)
     header, data_rows = read_csv_table(
@@ -77,27 +100,28 @@ def read_joint_csv(path, *, expected_dt_s: float | None = None) -> JointTrajecto
     for index, name in enumerate(names):
         if not name:
             raise ValueError(f"{path}: joint column {index + 1} has an empty name")
+        if name == "t" or name in reserved_names:
+            raise ValueError(f"{path}: joint column {index + 1} is named {quote(name)}, a "
+                             "name reserved for a time column; rename the joint")
     duplicates = sorted({name for name in names if names.count(name) > 1})
     if duplicates:
-        raise ValueError(f"{path}: duplicate joint column name(s) {duplicates}")
-    data = np.empty((len(data_rows), len(header)))
-    for data_index, (row_index, row) in enumerate(data_rows):
-        if len(row) != len(header):
-            raise ValueError(
-                f"{path}: line {row_index} has {len(row)} value(s); the header has {len(header)}"
-            )
-        for col, (line, cell) in enumerate(zip(cell_lines(row_index, row), row)):
-            data[data_index, col] = parse_csv_number(cell, path=path, line=line,
-                                                     column=header[col])
+        raise ValueError(f"{path}: duplicate joint column name(s) {quote(duplicates)}")
+    data = parse_csv_rows(path, header, data_rows)
     if data.shape[0] < 2:
         raise ValueError(f"{path}: {data.shape[0]} data row(s); at least 2 are needed")
     t = data[:, 0]
     check_uniform_time(t, source=str(path), expected_dt_s=expected_dt_s)
     positions = data[:, 1:]
+    beyond = np.abs(positions) > MAX_ABS_JOINT_RAD
+    if beyond.any():
+        row, col = (int(i) for i in np.argwhere(beyond)[0])
+        raise ValueError(f"{path}: data row {row + 1}, joint {quote(names[col])}: "
+                         f"{float(positions[row, col])!r} rad is beyond ±{MAX_ABS_JOINT_RAD:g} "
+                         "rad; joint values are angles in radians")
     large = np.abs(positions).max(axis=0) > DEGREES_SUSPICION_RAD
     for index in np.flatnonzero(large):
         print(
-            f"warning: {path}: joint {names[index]!r} reaches "
+            f"warning: {path}: joint {quote(names[index])} reaches "
             f"{np.abs(positions[:, index]).max():.3g} rad; values are read as radians "
             "(were degrees meant?)",
             file=sys.stderr,
@@ -106,12 +130,17 @@ def read_joint_csv(path, *, expected_dt_s: float | None = None) -> JointTrajecto
 
 
 def read_csv_table(path, *, expected_header_hint: str, after_time_hint: str):
-    """Reads a UTF-8 CSV file whose header starts with a time column ``t``.
+    """Reads a UTF-8 CSV file whose header starts with a time column ``t``, within bounds.
 
     Blank lines are skipped but not renumbered, so every row keeps its line number in the file
     for error messages: the physical line (``\\n``, ``\\r\\n`` or ``\\r`` ends one) on which
     the row starts, also after quoted cells that span lines (see :func:`cell_lines` for the
     line of each cell). Header cells are stripped of white space; data cells are not.
+
+    The file is read through :func:`~telesmooth.user_input.read_file_bytes` (a regular
+    file of at most ``MAX_CSV_BYTES``; a device or FIFO is refused before reading), no line
+    may exceed ``MAX_CSV_LINE_CHARS`` characters, no row ``MAX_CSV_COLUMNS`` cells, and there
+    are at most ``MAX_CSV_ROWS`` data rows: memory stays a small multiple of the file size.
 
     Args:
         path: The file.
@@ -122,19 +151,18 @@ def read_csv_table(path, *, expected_header_hint: str, after_time_hint: str):
 
     Returns:
         ``(header, data_rows)``: the stripped header cells (a list whose first entry is ``"t"``)
-        and the data rows as a list of ``(line number, row cells)``.
+        and an iterator over the data rows as ``(line number, row cells)``, read lazily (the
+        row bounds are checked as it goes).
 
     Raises:
-        ValueError: If the file cannot be read, is not UTF-8 (the message gives the line and
-            the byte), is not valid CSV for Python's reader (e.g. a cell longer than
-            ``csv.field_size_limit()``; the message gives the line), is empty (or blank), or
-            its first header column is not ``t``.
+        ValueError: If the file cannot be read or is beyond the bounds above, is not UTF-8
+            (the message gives the line and the byte), is not valid CSV for Python's reader
+            (e.g. a cell longer than ``csv.field_size_limit()``; the message gives the line),
+            is empty (or blank), or its first header column is not ``t``. Iterating the rows
+            raises it too (a row beyond the bounds, or invalid CSV further down).
     """
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as error:
-        raise ValueError(f"{path}: cannot read ({error.strerror})") from None
+    data = read_file_bytes(path, what=str(path), max_bytes=MAX_CSV_BYTES)
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as error:
@@ -144,28 +172,85 @@ def read_csv_table(path, *, expected_header_hint: str, after_time_hint: str):
             f"{path}: line {line}: byte(s) {bad!r} at file offset {error.start} are not valid "
             f"UTF-8 ({error.reason}); save the file as UTF-8"
         ) from None
-    reader = csv.reader(io.StringIO(text, newline=""))
-    rows = []
-    try:
-        for cells in reader:
-            # reader.line_num counts physical lines read so far, so a record starts on the line
-            # after the one where the previous record ended.
-            first_line = rows[-1][2] + 1 if rows else 1
-            rows.append((first_line, cells, reader.line_num))
-    except csv.Error as error:
-        raise ValueError(f"{path}: line {reader.line_num}: not valid CSV ({error})") from None
-    # Keep each row's line number in the file (blank lines are skipped, not renumbered).
-    numbered = [(line, row) for line, row, _ in rows
-                if row and any(cell.strip() for cell in row)]
-    if not numbered:
+    del data
+    long_line = _LONG_LINE.search(text)
+    if long_line is not None:
+        line = 1 + len(_LINE_BREAK.findall(text, 0, long_line.start()))
+        raise ValueError(f"{path}: line {line} is longer than {MAX_CSV_LINE_CHARS} characters "
+                         "(is this a CSV file?)")
+    rows = _numbered_rows(path, text)
+    for first_line, cells in rows:
+        header = [cell.strip() for cell in cells]
+        break
+    else:
         raise ValueError(f"{path}: the file is empty; expected a header '{expected_header_hint}'")
-    header = [cell.strip() for cell in numbered[0][1]]
     if header[0] != "t":
         raise ValueError(
-            f"{path}: the first header column is {header[0]!r}; it must be 't' (seconds), "
+            f"{path}: the first header column is {quote(header[0])}; it must be 't' (seconds), "
             f"followed by {after_time_hint}"
         )
-    return header, numbered[1:]
+    return header, _bounded_data_rows(path, rows)
+
+
+def _numbered_rows(path, text: str):
+    """The non-blank rows of ``text`` as ``(first line, cells)``; see :func:`read_csv_table`."""
+    reader = csv.reader(_physical_lines(text))
+    last_line = 0
+    try:
+        for cells in reader:
+            # reader.line_num counts physical lines read so far, so a record starts on the
+            # line after the one where the previous record ended.
+            first_line, last_line = last_line + 1, reader.line_num
+            if len(cells) > MAX_CSV_COLUMNS:
+                raise ValueError(f"{path}: line {first_line} has {len(cells)} cells; the "
+                                 f"limit is {MAX_CSV_COLUMNS} columns")
+            if cells and any(cell.strip() for cell in cells):
+                yield first_line, cells
+    except csv.Error as error:
+        raise ValueError(f"{path}: line {reader.line_num}: not valid CSV ({error})") from None
+
+
+def _bounded_data_rows(path, rows):
+    for count, row in enumerate(rows, start=1):
+        if count > MAX_CSV_ROWS:
+            raise ValueError(f"{path}: more than {MAX_CSV_ROWS} data rows (line {row[0]}); "
+                             "split or resample the recording")
+        yield row
+
+
+def _physical_lines(text: str):
+    """The lines of ``text`` with their line breaks, as ``open(newline="")`` gives them."""
+    for match in _PHYSICAL_LINE.finditer(text):
+        if match.group():
+            yield match.group()
+
+
+def parse_csv_rows(path, header, data_rows, *, check=None) -> np.ndarray:
+    """The data rows of :func:`read_csv_table` as a float array (rows, len(header)), every
+    cell parsed by :func:`parse_csv_number` (errors name the line and column).
+
+    Args:
+        path, header, data_rows: As :func:`read_csv_table` returns them.
+        check: Optional ``check(column index, value) -> problem or None``; a problem (e.g.
+            ``"must be 0 or 1"``) becomes an error naming the cell's line, column and value.
+    """
+    width = len(header)
+    values = array.array("d")
+    for row_index, row in data_rows:
+        if len(row) != width:
+            raise ValueError(
+                f"{path}: line {row_index} has {len(row)} value(s); the header has {width} "
+                f"columns {quote(header)}"
+            )
+        for col, (line, cell) in enumerate(zip(cell_lines(row_index, row), row)):
+            value = parse_csv_number(cell, path=path, line=line, column=header[col])
+            problem = None if check is None else check(col, value)
+            if problem is not None:
+                raise ValueError(f"{path}: line {line}, column {quote(header[col])}: value "
+                                 f"{quote(cell.strip())} {problem}")
+            values.append(value)
+    return np.frombuffer(values, dtype=float).reshape(-1, width).copy() if values else \
+        np.empty((0, width))
 
 
 def cell_lines(first_line: int, cells) -> list[int]:
@@ -190,16 +275,24 @@ def cell_lines(first_line: int, cells) -> list[int]:
 
 
 def parse_csv_number(cell: str, *, path, line: int, column: str) -> float:
-    """Parses one CSV cell as a finite float; the error names the file, line, column and value."""
+    """Parses one CSV cell as a finite float; the error names the file, line, column and value.
+
+    Only plain decimal numbers are numbers here (see
+    :func:`~telesmooth.user_input.parse_plain_number`): ``float()`` also takes ``1_0e-3``,
+    non-ASCII digits and other spellings nobody means in a data file, and they are refused.
+    """
     try:
-        value = float(cell)
+        value = parse_plain_number(cell)
     except ValueError:
         raise ValueError(
-            f"{path}: line {line}, column {column!r}: {cell.strip()!r} is not a number"
+            f"{path}: line {line}, column {quote(column)}: "
+            f"{quote(cell.strip(ASCII_BLANKS))} is not a number (plain decimal: digits 0-9, "
+            "'.', an exponent)"
         ) from None
     if not math.isfinite(value):
         raise ValueError(
-            f"{path}: line {line}, column {column!r}: value {cell.strip()!r} is not finite"
+            f"{path}: line {line}, column {quote(column)}: value "
+            f"{quote(cell.strip(ASCII_BLANKS))} is not finite"
         )
     return value
 
@@ -266,12 +359,16 @@ def check_uniform_time(t_s, *, source: str = "t", expected_dt_s: float | None = 
 
 
 def write_joint_csv(path, t_s, positions, joint_names, *, extra_columns=None) -> None:
-    """Writes ``t,<joints…>[,extra…]`` with full float precision (repr round-trips exactly)."""
+    """Writes ``t,<joints…>[,extra…]`` with full float precision (repr round-trips exactly).
+
+    The file is written atomically (:func:`~telesmooth.atomic_files.atomic_write`): complete,
+    or not at all. Parent folders are created.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     positions = np.asarray(positions, dtype=float)
     extra_columns = dict(extra_columns or {})
-    with path.open("w", newline="") as handle:
+    with atomic_write(path, "w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(["t", *joint_names, *extra_columns])
         extras = [np.asarray(v, dtype=float) for v in extra_columns.values()]

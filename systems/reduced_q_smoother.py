@@ -21,6 +21,7 @@ from telesmooth.smoothing.model import (
     DEFAULT_LAG,
     DEFAULT_R,
     DEFAULT_SIGMA,
+    MAX_LAG,
     STATE_SIZE,
     JerkModel,
 )
@@ -81,9 +82,9 @@ class ReducedQSmootherConfig:
             )
         check_period("ReducedQSmootherConfig.period_s", self.period_s)
         if isinstance(self.lag, bool) or not isinstance(self.lag, (int, np.integer)) or (
-                self.lag < 0):
+                self.lag < 0) or self.lag > MAX_LAG:
             raise ValueError(
-                f"ReducedQSmootherConfig.lag = {self.lag!r} must be a non-negative integer"
+                f"ReducedQSmootherConfig.lag = {self.lag!r} must be an integer in 0..{MAX_LAG}"
             )
         for name, allow_inf in (("sigma", False), ("r", False),
                                 ("max_acceleration_rad_per_s2", True),

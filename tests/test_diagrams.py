@@ -118,14 +118,25 @@ def test_lcm_split_sends_the_same_commands_as_the_single_process(tmp_path):
 @pytest.mark.parametrize("text,match", [
     ("{arm: scara}", r"arm = 'scara'"),
     ("{fifo: {delay_s: 0.8}}", r"delay_s = 0.8 is not a whole number"),
-    ("{smoother: {sigma: -1.0}}", r"scenario.smoother: .*sigma = -1.0 must be positive"),
+    ("{smoother: {sigma: -1.0}}", r"with scenario_text: smoother.sigma = -1.0 must be positive"),
     ("{smoother: {max_jerk_rad_per_s3: [0.1, 0.0, 0.1]}}",
      r"smoother.max_jerk_rad_per_s3\[1\] = 0.0 for joint 1 \('elbow'\)"),
-    ("{smoother: {colour: red}}", r"scenario.smoother: unknown key\(s\) \['colour'\]"),
+    ("{smoother: {colour: red}}", r"smoother: unknown key\(s\) \['colour'\]"),
     ("{haptic: {source: file}}", r"haptic.file must name"),
     ("{uplink: {period_s: 0.5}}", r"share one period"),
     ("{initial_position_rad: [0.0, 0.0, 9.0]}", r"initial_position_rad\['wrist'\] = 9.0"),
-    ("{settle_s: yes}", r"scenario.settle_s = True must be a number"),
+    ("{settle_s: yes}", r"with scenario_text: settle_s = True must be a number"),
+    ("{haptic: {period_s: -100}}", r"haptic.period_s = -100.0 must be positive"),
+    ("{haptic: {lasa_shape: Sshap}}", r"haptic.lasa_shape = 'Sshap' is not one of the 30 "
+                                      r"LASA shapes; did you mean 'Sshape'"),
+    ("{haptic: {lasa_demo: 7}}", r"haptic.lasa_demo = 7 is out of range"),
+    ("{fifo: {period_s: 0}, smoother: {period_s: 0}, uplink: {period_s: 0}}",
+     r"fifo.period_s = 0.0 must be positive"),
+    ("{smoother: {lag: 4000}, fifo: {delay_s: 1000}}", r"smoother.lag = 4000 must be an integer "
+                                                       r"in 0..1000"),
+    ("{1: 2}", r"scenario_text: line 1: the key '1' in the top level is an integer"),
+    ("{~: 2}", r"scenario_text: line 1: the key '~' in the top level is null"),
+    ("{haptic: {lasa_demo: 1, lasa_demo: 2}}", r"'haptic.lasa_demo' is given twice"),
     ("{arm: [", r"scenario_text: not valid YAML at line 1, column 8"),
     ("[1, 2]", r"scenario_text must be a mapping at the top level; got list"),
     ("{settle_s: .nan}", r"settle_s = nan"),
@@ -145,9 +156,10 @@ def test_unknown_scenario_name_lists_the_known_ones():
 def test_scenario_file_errors_name_the_file(tmp_path):
     broken = tmp_path / "broken.yaml"
     broken.write_text("Defaults:\n  arm: [space_arm\n")
-    with pytest.raises(ValueError, match=r"scenario file .*broken.yaml: not valid YAML at line"):
+    with pytest.raises(ValueError,
+                       match=r"scenario file = '.*broken.yaml': not valid YAML at line"):
         load_scenario(filename=broken)
-    with pytest.raises(ValueError, match=r"scenario file .*missing.yaml: cannot read"):
+    with pytest.raises(ValueError, match=r"scenario file = '.*missing.yaml': cannot read"):
         load_scenario(filename=tmp_path / "missing.yaml")
 
 

@@ -366,7 +366,7 @@ def test_cli_writes_the_report_and_names_bad_shapes(tmp_path, capsys):
     status = main(["experiment", "--out", str(out), "--shapes", "Angle,Circle", "--workers",
                    "0"])
     assert status == 2
-    assert "unknown shape(s) ['Circle']" in capsys.readouterr().err
+    assert "--shapes = 'Circle' is not one of the 30 LASA shapes" in capsys.readouterr().err
 
 
 # --- the output folder: resuming, refusing a changed grid, shards and merging -----------------

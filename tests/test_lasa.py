@@ -86,9 +86,14 @@ def test_load_matches_the_mat_file_layout():
 
 @pytest.mark.parametrize("bad_shape", ["Circle", "angle", "", "Angle.mat"])
 def test_bad_shape_names_the_shape_and_lists_valid_ones(bad_shape):
-    with pytest.raises(ValueError, match=rf"shape = {bad_shape!r} is not a LASA shape") as info:
+    with pytest.raises(ValueError, match=rf"shape = {bad_shape!r} is not one of the 30 LASA "
+                                         "shapes") as info:
         load_lasa_demonstration(bad_shape, 0)
-    assert "Angle" in str(info.value) and "heee" in str(info.value)
+    # One line: the closest shapes, then the start of the list (all 30 would not fit).
+    message = str(info.value)
+    assert "Angle, BendedLine" in message and len(message) < 250
+    if bad_shape in ("angle", "Angle.mat"):
+        assert "did you mean 'Angle'" in message
     with pytest.raises(ValueError, match=rf"shape = {bad_shape!r}"):
         lasa_operator_session(bad_shape, 0)
 

@@ -93,8 +93,10 @@ def test_ports_and_output_before_any_packet():
     dut = harness.dut
     assert [dut.get_output_port(i).get_name() for i in range(dut.num_output_ports())] == [
         "lcm_message", "message_count", "undecodable_count", "message_undecodable",
-        "last_decode_error", "packets"]
+        "last_decode_error", "packets", "dropped_count"]
     assert dut.num_input_ports() == 0
+    # A DrakeLcm does not tell what it drops: NaN, not a misleading 0.
+    assert np.isnan(dut.get_dropped_count_output_port().Eval(harness.context)[0])
     harness.send()
     msg = harness.message()
     assert isinstance(msg, lcmt_teleop_joint_command)

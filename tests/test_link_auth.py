@@ -21,7 +21,6 @@ from telesmooth.link.auth import (
     MIN_KEY_BYTES,
     TAG_BYTES,
     UplinkKeyError,
-    UplinkKeyPermissionWarning,
     canonical_bytes,
     generate_key_file,
     load_key,
@@ -253,7 +252,8 @@ def test_load_key_from_environment():
 ])
 def test_key_errors_name_the_source_and_reason(tmp_path, text, reason):
     path = _write(tmp_path / "uplink.key", text)
-    with pytest.raises(UplinkKeyError, match=re.escape(f"uplink key file {path}: {reason}")):
+    with pytest.raises(UplinkKeyError,
+                       match=re.escape(f"uplink key file {str(path)!r}: {reason}")):
         load_key(path)
     with pytest.raises(UplinkKeyError, match=re.escape(
             f"environment variable {KEY_ENVIRONMENT_VARIABLE}: {reason}")):
@@ -271,18 +271,52 @@ def test_missing_key_names_the_variable_and_the_file(tmp_path):
     with pytest.raises(UplinkKeyError, match=f"{KEY_ENVIRONMENT_VARIABLE} is not set"):
         load_key(environ={})
     missing = tmp_path / "nope.key"
-    with pytest.raises(UplinkKeyError, match=re.escape(f"uplink key file {missing}: cannot "
-                                                       "read it")):
+    with pytest.raises(UplinkKeyError, match=re.escape(f"uplink key file {str(missing)!r}: "
+                                                       "cannot read it")):
         load_key(missing)
     assert issubclass(UplinkKeyError, ValueError)
 
 
 @pytest.mark.skipif(os.name != "posix", reason="POSIX permissions")
-@pytest.mark.parametrize("mode", [0o644, 0o640, 0o604, 0o660])
-def test_key_file_accessible_to_others_warns(tmp_path, mode):
+@pytest.mark.parametrize("mode", [0o644, 0o640, 0o604, 0o660, 0o602, 0o620, 0o601])
+def test_key_file_accessible_to_others_is_refused_with_the_chmod_that_fixes_it(tmp_path, mode):
+    # As ssh refuses a private key others can read or write: a warning scrolls away, and a
+    # key others could have changed authenticates nothing.
     path = _write(tmp_path / "uplink.key", KEY.hex(), mode)
-    with pytest.warns(UplinkKeyPermissionWarning, match=re.escape(f"mode {mode:#o}")):
-        assert load_key(path) == KEY
+    with pytest.raises(UplinkKeyError) as error:
+        load_key(path)
+    message = str(error.value)
+    assert f"mode {mode:#o}" in message and f"chmod 600 {path}" in message
+    assert KEY.hex() not in message and KEY.hex()[:16] not in message
+    os.chmod(path, 0o600)
+    assert load_key(path) == KEY
+
+
+def test_a_hex_key_given_as_the_key_file_is_not_echoed(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(UplinkKeyError) as error:
+        load_key(KEY.hex())
+    message = str(error.value)
+    assert "hex string" in message and "not shown" in message
+    assert KEY.hex()[:16] not in message and KEY.hex()[-16:] not in message
+
+
+@pytest.mark.parametrize("special", ["/dev/zero", "/dev/urandom", "fifo"])
+def test_a_key_file_that_never_ends_is_refused_before_reading(tmp_path, special):
+    path = special
+    if special == "fifo":
+        path = tmp_path / "fifo"
+        os.mkfifo(path)
+    with pytest.raises(UplinkKeyError, match="is a (character device|FIFO)"):
+        load_key(path)
+
+
+def test_a_key_file_larger_than_the_bound_is_refused(tmp_path):
+    from telesmooth.user_input import MAX_KEY_FILE_BYTES
+
+    path = _write(tmp_path / "big.key", KEY.hex() + " " * MAX_KEY_FILE_BYTES)
+    with pytest.raises(UplinkKeyError, match="limit is 4 KiB"):
+        load_key(path)
 
 
 def test_generate_key_file_writes_a_fresh_private_key_and_refuses_to_overwrite(tmp_path):
@@ -299,7 +333,28 @@ def test_generate_key_file_writes_a_fresh_private_key_and_refuses_to_overwrite(t
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert load_key(path) == key
-    with pytest.raises(FileExistsError, match="refusing to overwrite"):
+    with pytest.raises(UplinkKeyError, match="exists .a file.; refusing to overwrite"):
         generate_key_file(path)
     assert path.read_text() == key.hex() + "\n"
     assert generate_key_file(tmp_path / "second.key") != key   # random, not fixed
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["second.key", "uplink.key"]
+
+
+def test_generate_key_file_makes_missing_folders_private(tmp_path):
+    path = tmp_path / "home" / ".telesmooth" / "uplink.key"
+    key = generate_key_file(path)
+    assert load_key(path) == key
+    for folder in (tmp_path / "home", tmp_path / "home" / ".telesmooth"):
+        assert stat.S_IMODE(folder.stat().st_mode) == 0o700
+
+
+@pytest.mark.parametrize("where", ["folder", "parent-file", "fifo"])
+def test_generate_key_file_refuses_what_is_in_the_way(tmp_path, where):
+    (tmp_path / "file").write_text("keep")
+    path = {"folder": tmp_path, "parent-file": tmp_path / "file" / "uplink.key",
+            "fifo": tmp_path / "fifo"}[where]
+    if where == "fifo":
+        os.mkfifo(path)
+    with pytest.raises(UplinkKeyError, match="exists|is a file, not a folder"):
+        generate_key_file(path)
+    assert (tmp_path / "file").read_text() == "keep"

@@ -221,8 +221,10 @@ def test_sigint_stops_the_relay_and_writes_the_report(tmp_path):
 @pytest.mark.parametrize("arguments, message", [
     (["--link", "{loss_probability: 2}"], "--link: loss_probability = 2 must be a probability"),
     (["--link", "{colour: red}"], "--link: link fault config: unknown key(s) ['colour']"),
-    (["--link", "[1, 2]"], "--link: link fault config = [1, 2] must be a mapping"),
-    (["--link", "{delay_s: [0.3"], "--link = '{delay_s: [0.3' is not a YAML/JSON mapping"),
+    (["--link", "[1, 2]"], "--link must be a mapping at the top level; got list"),
+    (["--link", "{delay_s: [0.3"], "--link: not valid YAML at line 1"),
+    (["--link", "{delay_s: 0.1, delay_s: 0.2}"], "--link: 'delay_s' is given twice"),
+    (["--link", "{1: 2}"], "--link: line 1: the key '1' in the top level is an integer"),
     (["--link", "{outages: [[2, 1]]}"], "--link: outages[0] = [2, 1]: end must be > start"),
     (["--downlink", "{delay_s: -1}"], "--downlink: delay_s = -1 must be finite and >= 0"),
     (["--duration", "0"], "--duration = 0.0 must be > 0 s"),

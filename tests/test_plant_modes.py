@@ -177,7 +177,7 @@ def test_drive_fields_override_the_preset_and_reach_the_plant():
 
 @pytest.mark.parametrize("text, message", [
     ("{onboard: {drive: {preset: feather}}}",
-     "scenario.onboard.drive: preset = 'feather' must be one of ('lab', 'lightweight')"),
+     "onboard.drive.preset = 'feather' must be one of ('lab', 'lightweight')"),
     ("{onboard: {drive: {stiffness_n_m_per_rad: [1, 2]}}}",
      "onboard.drive.stiffness_n_m_per_rad has 2 value(s)"),
     ("{onboard: {drive: {damping_n_m_s_per_rad: {shoulder: 1, elbow: -2, wrist: 3}}}}",
