@@ -348,6 +348,8 @@ def add_link_loggers(builder, receiver: JointCommandReceiver, guard: LinkGuard,
                                                period_s),
         "guard_stop_outcome": LogVectorOutput(guard.get_stop_outcome_output_port(), builder,
                                               period_s),
+        "guard_stream_distance": LogVectorOutput(guard.get_stream_distance_output_port(),
+                                                 builder, period_s),
     }
 
 

@@ -36,10 +36,7 @@ from telesmooth.diagrams.teleoperation import (
     uplink_packets,
 )
 from telesmooth.lcm_types import lcmt_teleop_joint_command
-from telesmooth.systems.collision_stop import (
-    SAME_SIDE_TOLERANCE_RAD,
-    STOP_OUTCOMES,
-)
+from telesmooth.safety.stop import SAME_SIDE_TOLERANCE_RAD, STOP_OUTCOMES
 
 PROBE = """{workspace: {obstacles: [
     {name: fixture, center_m: [0.75, 0.55, 0.0], size_m: [0.3, 0.1, 0.2]},
