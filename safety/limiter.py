@@ -128,7 +128,6 @@ from __future__ import annotations
 import enum
 import functools
 import math
-import warnings
 from dataclasses import dataclass
 from typing import NamedTuple
 

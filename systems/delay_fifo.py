@@ -186,8 +186,8 @@ class DelayFifo(LeafSystem):
         q_newest = window_k[L];  q_delayed = window_k[0];  b ← window_k[1:]
 
     With ``on_collision = "stop"``, at a collision tick that starts a hold (h_{k−1} = 0) the
-    plan P = [P_0 … P_{N−1}] is made from [p_{k−3}, p_{k−2}, p_{k−1}] (a hold fallback is
-    N = 1, P_0 = q_s) and i ← 0; then
+    plan P = [P_0 … P_{N−1}] from [p_{k−3}, p_{k−2}, p_{k−1}] (planned before the tick, see
+    below; a hold fallback is N = 1, P_0 = q_s) is taken and i ← 0; then
 
         h_k = collision_k  or  (h_{k−1} and (not released_k or i < N))
         window_k = [P_i, …, P_i], i ← i + 1   if h_k and i < N   (the stop: the smoother

@@ -5,6 +5,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -80,3 +81,23 @@ def guard_gaps(received_t, timeout_s):
     which the next packet came later than ``timeout_s`` (the guard then rightly stops)."""
     t = np.asarray(received_t, dtype=float)
     return np.flatnonzero(np.diff(t) > timeout_s)
+
+
+class BusPump:
+    """Pumps ``lcm.LCM`` buses (handle their subscriptions) in a daemon thread until
+    :meth:`close`."""
+
+    def __init__(self, *buses):
+        self.buses = buses
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self):
+        while not self._stop.is_set():
+            for bus in self.buses:
+                bus.handle_timeout(5)
+
+    def close(self):
+        self._stop.set()
+        self._thread.join(timeout=5)

@@ -20,9 +20,7 @@ from telesmooth.safety.stop import (
     SAME_SIDE_TOLERANCE_RAD,
     STOP_OUTCOMES,
     STOPPABLE_ROUNDING_TOLERANCE,
-    StopOutcome,
     nudge_into_stoppable_set,
-    plan_stop,
     stop_params,
 )
 from telesmooth.systems.collision_stop import MakeCollisionStopPlanner, PreSimulatorPoseCheck
@@ -342,6 +340,43 @@ def test_stop_only_ports_exist_only_with_the_stop_policy():
     names = [stop.get_output_port(i).get_name() for i in range(stop.num_output_ports())]
     assert names[-2:] == ["braking_distance", "stop_status"]
     assert stop.get_stop_status_output_port().size() == 1
+
+
+def test_the_fifo_plans_between_ticks_and_a_tick_without_a_plan_holds():
+    """The stop is planned at mid-period from the history the next tick will have (never in
+    an output calculation); a collision tick whose history was not planned (a tick forced
+    without the mid-period update) falls back to the hold instead of planning on the spot."""
+    moving = history_from([0.3, -0.2], [0.2, -0.1], [0.0, 0.0])
+    config = DelayFifoConfig(on_collision="stop")
+    fifo = DelayFifo(config, num_joints=2, initial_position_rad=[0.0, 0.0],
+                     collision_stop=make_planner())
+    # No plan for this history (a fresh context: the plan is the rest at the start pose).
+    context = fifo.CreateDefaultContext()
+    fifo.get_q_target_input_port().FixValue(context, [0.0, 0.0])
+    fifo.get_q_sent_input_port().FixValue(context, moving[2])
+    fifo.get_collision_detected_input_port().FixValue(context, [1.0])
+    np.testing.assert_array_equal(fifo.get_q_delayed_output_port().Eval(context), moving[2])
+    assert STOP_OUTCOMES[int(fifo.get_stop_status_output_port().Eval(context)[0])] == "hold"
+    # In a simulation the sent commands m0, m1, m2 arrive at the ticks; the mid-period update
+    # before the collision tick plans from [m0, m1, m2], and the tick plays that plan.
+    simulator = Simulator(fifo)
+    context = simulator.get_mutable_context()
+    fifo.get_q_target_input_port().FixValue(context, [0.0, 0.0])
+    fifo.get_collision_detected_input_port().FixValue(context, [0.0])
+    # Tick k sends p_{k−1} = q_sent: m0 at tick 1, m1 at tick 2; m2 is sent at t_2 and the
+    # mid-period update after it plans for tick 3 from [m0, m1, m2].
+    for k, until in enumerate((1.0 * DT + 1e-3, 2.0 * DT + 1e-3, 2.5 * DT + 1e-3)):
+        fifo.get_q_sent_input_port().FixValue(context, moving[k])
+        simulator.AdvanceTo(until)
+    fifo.get_collision_detected_input_port().FixValue(context, [1.0])
+    context.SetTime(3 * DT)                                # tick 3, before its update
+    plan = make_planner().plan(moving, max_ticks=config.max_stop_ticks)
+    assert plan.is_stop and plan.ticks_to_rest > 2
+    np.testing.assert_array_equal(fifo.get_q_delayed_output_port().Eval(context),
+                                  plan.commands[0])
+    assert STOP_OUTCOMES[int(fifo.get_stop_status_output_port().Eval(context)[0])] == "stop"
+    np.testing.assert_array_equal(fifo.get_braking_distance_output_port().Eval(context),
+                                  plan.braking_distance)
 
 
 def _histories_at_the_limits(limiter, target, ticks=120):

@@ -34,13 +34,18 @@ is online-hard; the guard joins every gap through its limiter and ramps down bet
 
 import json
 import signal
-import threading
 import time
 
 import lcm
 import numpy as np
 import pytest
-from process_fixtures import PROCESS_TEST_TIMEOUT_S, CliProcess, bus_urls, read_rows
+from process_fixtures import (
+    PROCESS_TEST_TIMEOUT_S,
+    BusPump,
+    CliProcess,
+    bus_urls,
+    read_rows,
+)
 
 from telesmooth.diagrams.channels import ONBOARD_JOINT_STATUS, TELEOP_JOINT_COMMAND
 from telesmooth.diagrams.scenario import load_scenario
@@ -87,9 +92,7 @@ class _Listener:
             bus.subscribe(TELEOP_JOINT_COMMAND, lambda c, d, bus=bus: self._command(bus, d)) \
                 .set_queue_capacity(10_000)
         self._bus_b.subscribe(ONBOARD_JOINT_STATUS, self._status)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._pump, daemon=True)
-        self._thread.start()
+        self._pump = BusPump(self._bus_a, self._bus_b)
 
     def _command(self, bus, data):
         msg = lcmt_teleop_joint_command.decode(data)
@@ -121,14 +124,8 @@ class _Listener:
                 return current
         raise AssertionError(f"the onboard counts did not settle: {previous}")
 
-    def _pump(self):
-        while not self._stop.is_set():
-            self._bus_a.handle_timeout(5)
-            self._bus_b.handle_timeout(5)
-
     def close(self):
-        self._stop.set()
-        self._thread.join(timeout=5)
+        self._pump.close()
 
 
 @pytest.fixture(scope="module")
@@ -178,13 +175,16 @@ def matrix(tmp_path_factory):
                 onboard.send_signal(signal.SIGSTOP)
                 time.sleep(0.8)
                 onboard.send_signal(signal.SIGCONT)
+            back_at = None
             if name.startswith("outage"):
                 time.sleep(2.0)
                 assert relays[0].stop() == 0           # the link goes down ...
                 time.sleep(2.0)
                 relays.append(relay(f"relay{index}b", faults))   # ... and comes back
+                back_at = time.monotonic()             # (a loaded machine starts it slowly)
             assert ground.wait(timeout=PROCESS_TEST_TIMEOUT_S) == 0, \
                 ground.log_path.read_text()
+            ended_at = time.monotonic()
             time.sleep(2.5)                            # the relay's queue drains (delay 1.5 s)
             for process in relays:
                 assert process.stop() == 0, process.log_path.read_text()
@@ -192,7 +192,9 @@ def matrix(tmp_path_factory):
                        for suffix in ("", "b")[:len(relays)]]
             sessions = {key[0] for key in listener.arrivals[arrivals_before:]}
             cases[name] = dict(before=before, after=listener.settled_counts(), reports=reports,
-                               sessions=sessions)
+                               sessions=sessions,
+                               relay_back_before_end_s=(None if back_at is None
+                                                        else ended_at - back_at))
         assert onboard.stop(timeout_s=PROCESS_TEST_TIMEOUT_S) == 0, \
             onboard.log_path.read_text()
     finally:
@@ -248,13 +250,18 @@ def test_every_forwarded_packet_was_examined_and_exactly_the_newer_ones_accepted
     assert delta["accepted_count"] == len(expected) == taken[-1] + 1, (name, taken)
     assert taken == sorted(set(taken)), (name, taken)
     assert [(int(s), int(k)) for s, k in mine[:, 1:3]] == [expected[i] for i in taken]
-    assert len(expected) >= 10, name
+    assert len(expected) >= (4 if name.startswith("outage") else 10), name
     for row in mine:
         np.testing.assert_array_equal(row[4:], listener.sent[(int(row[1]), int(row[2]))])
     if name == "outage 2 s":
         assert len(case["reports"]) == 2          # a second relay after the outage
         sent = [key for key in listener.sent if key[0] == session]
         assert len(sent) - len(expected) >= 4     # the packets of the 2 s outage are gone
+        # Measured, not assumed: when the second relay was up a second before the ground
+        # ended, packets after the outage reached the robot too.
+        # (every forwarded packet was examined: the sum over both relays, above).
+        if case["relay_back_before_end_s"] > 1.0:
+            assert case["reports"][1]["forwarded"] > 0, case["reports"]
     bursts = [i for i in range(1, len(taken)) if taken[i] - taken[i - 1] > 1]
     timeout_s = matrix["scenario"].link_guard.timeout_s
     late = [i for i in range(1, len(taken)) if mine[i, 3] - mine[i - 1, 3] > timeout_s]

@@ -15,13 +15,18 @@ robot's commanded pose.
 
 import json
 import signal
-import threading
 import time
 
 import lcm
 import numpy as np
 import pytest
-from process_fixtures import PROCESS_TEST_TIMEOUT_S, CliProcess, bus_urls, read_rows
+from process_fixtures import (
+    PROCESS_TEST_TIMEOUT_S,
+    BusPump,
+    CliProcess,
+    bus_urls,
+    read_rows,
+)
 
 from telesmooth.diagrams.channels import TELEOP_JOINT_COMMAND
 from telesmooth.diagrams.scenario import load_scenario
@@ -80,23 +85,18 @@ def fault_run(tmp_path_factory):
     bus_b.subscribe(TELEOP_JOINT_COMMAND, lambda c, d: captured.append(bytes(d)))
     bus_b.subscribe("ONBOARD_JOINT_STATUS",
                     lambda c, d: status.append(lcmt_onboard_joint_status.decode(d)))
-    stop = threading.Event()
-
-    def pump():
-        while not stop.is_set():
-            bus_a.handle_timeout(5)
-            bus_b.handle_timeout(5)
-
-    pumping = threading.Thread(target=pump, daemon=True)
-    pumping.start()
+    pumping = BusPump(bus_a, bus_b)
     attacks = {"unsigned": 0, "forged": 0, "replayed": 0, "garbage": 0, "nan": 0, "count": 0}
     try:
-        onboard = start(["onboard", "--lcm-url", url_b, "--duration", "30",
+        # The onboard process runs until this test stops it (SIGINT; it writes its logs): a
+        # fixed duration would be a wall-clock margin that a slow start on a loaded machine
+        # eats before the second ground has sent anything.
+        onboard = start(["onboard", "--lcm-url", url_b, "--duration", "900",
                                       "--out", str(out)] + common, "onboard")
         onboard.wait_for("onboard: listening", PROCESS_TEST_TIMEOUT_S)
         relay = start(["link-relay", "--in-url", url_a, "--out-url", url_b,
                                     "--link", LINK, "--report", str(out / "relay.json"),
-                                    "--duration", "40"], "relay")
+                                    "--duration", "900"], "relay")
         relay.wait_for("ready", PROCESS_TEST_TIMEOUT_S)
         ground = start(["ground", "--lcm-url", url_a, "--duration", "12",
                                      "--resume-wait", "0"] + common, "ground1")
@@ -144,11 +144,13 @@ def fault_run(tmp_path_factory):
         ground2.wait_for("ground: publishing", PROCESS_TEST_TIMEOUT_S)
         assert ground2.wait(timeout=PROCESS_TEST_TIMEOUT_S) == 0, ground2.log_path.read_text()
         restart_log = ground2.log_path.read_text()
-        assert onboard.wait(timeout=PROCESS_TEST_TIMEOUT_S) == 0, onboard.log_path.read_text()
+        time.sleep(3.0)                             # the last packets reach the robot
+        assert onboard.stop(timeout_s=PROCESS_TEST_TIMEOUT_S) == 0, \
+            onboard.log_path.read_text()
         relay.send_signal(signal.SIGINT)
         relay.wait(timeout=30)
     finally:
-        stop.set()
+        pumping.close()
         for process in processes:
             if process.poll() is None:
                 process.kill()

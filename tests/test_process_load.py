@@ -17,7 +17,6 @@ the bus (this test listens) and the onboard's real-time factor are printed with 
 """
 
 import json
-import threading
 import time
 
 import lcm
@@ -25,6 +24,7 @@ import numpy as np
 import pytest
 from process_fixtures import (
     PROCESS_TEST_TIMEOUT_S,
+    BusPump,
     CliProcess,
     CpuHog,
     bus_urls,
@@ -43,28 +43,18 @@ REQUIRED_SHARE = 0.95
 REJOIN_LIMIT_S = 15.0      # the slowest re-join measured on Defaults' packets after 1 s
 
 
-class _Arrivals:
-    """Wall-clock arrival of every addressed command on the bus (lcm package, a thread)."""
+class _Arrivals(BusPump):
+    """Wall-clock arrival of every addressed command on the bus."""
 
     def __init__(self, url):
         self.times = []
-        self._bus = lcm.LCM(url)
-        self._bus.subscribe(TELEOP_JOINT_COMMAND, self._handle).set_queue_capacity(10_000)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._pump, daemon=True)
-        self._thread.start()
+        bus = lcm.LCM(url)
+        bus.subscribe(TELEOP_JOINT_COMMAND, self._handle).set_queue_capacity(10_000)
+        super().__init__(bus)
 
     def _handle(self, _channel, data):
         if lcmt_teleop_joint_command.decode(data).seq >= 0:
             self.times.append(time.monotonic())
-
-    def _pump(self):
-        while not self._stop.is_set():
-            self._bus.handle_timeout(5)
-
-    def close(self):
-        self._stop.set()
-        self._thread.join(timeout=5)
 
 
 @pytest.fixture(scope="module")

@@ -15,14 +15,18 @@ and listens to the bus. In order:
 """
 
 import json
-import signal
-import threading
 import time
 
 import lcm
 import numpy as np
 import pytest
-from process_fixtures import PROCESS_TEST_TIMEOUT_S, CliProcess, bus_urls, read_rows
+from process_fixtures import (
+    PROCESS_TEST_TIMEOUT_S,
+    BusPump,
+    CliProcess,
+    bus_urls,
+    read_rows,
+)
 
 from telesmooth.diagrams.channels import ONBOARD_JOINT_STATUS, TELEOP_JOINT_COMMAND
 from telesmooth.diagrams.scenario import load_scenario
@@ -36,7 +40,7 @@ SCENARIO_TEXT = ("{haptic: {source: synthetic, synthetic: {duration_s: 6.0, hold
                  " hold_end_s: 0.5}}, settle_s: 0.0, smoother: {method: online-hard}}")
 
 
-class _Bus:
+class _Bus(BusPump):
     """This test's view of the bus: commands (with their wall-clock arrival) and telemetry."""
 
     def __init__(self, url):
@@ -45,9 +49,7 @@ class _Bus:
         self.bus = lcm.LCM(url)
         self.bus.subscribe(TELEOP_JOINT_COMMAND, self._command).set_queue_capacity(10_000)
         self.bus.subscribe(ONBOARD_JOINT_STATUS, self._status).set_queue_capacity(10_000)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._pump, daemon=True)
-        self._thread.start()
+        super().__init__(self.bus)
 
     def _command(self, _channel, data):
         self.commands.append((time.monotonic(), bytes(data),
@@ -56,20 +58,12 @@ class _Bus:
     def _status(self, _channel, data):
         self.telemetry.append((time.monotonic(), lcmt_onboard_joint_status.decode(data)))
 
-    def _pump(self):
-        while not self._stop.is_set():
-            self.bus.handle_timeout(5)
-
     def latest_status(self, timeout_s=PROCESS_TEST_TIMEOUT_S):
         deadline = time.monotonic() + timeout_s
         while not self.telemetry and time.monotonic() < deadline:
             time.sleep(0.05)
         assert self.telemetry, "no onboard telemetry"
         return self.telemetry[-1][1]
-
-    def close(self):
-        self._stop.set()
-        self._thread.join(timeout=5)
 
 
 def _signed_command(names, key, *, seq, session, epoch, q):
