@@ -85,6 +85,7 @@ class _Listener:
 
     def __init__(self, url_a, url_b):
         self.sent = {}            # (session, seq) → positions, what the grounds sent on A
+        self.sent_at = {}         # (session, seq) → when it was on A (monotonic, s)
         self.arrivals = []        # (session, seq) in arrival order on B
         self.status = None        # the newest onboard telemetry
         self._bus_a, self._bus_b = lcm.LCM(url_a), lcm.LCM(url_b)
@@ -101,6 +102,7 @@ class _Listener:
         key = (msg.session_id, msg.seq)
         if bus is self._bus_a:
             self.sent[key] = np.asarray(msg.joint_position_smoothed)
+            self.sent_at.setdefault(key, time.monotonic())
         else:
             self.arrivals.append(key)
 
@@ -184,7 +186,6 @@ def matrix(tmp_path_factory):
                 back_at = time.monotonic()             # (a loaded machine starts it slowly)
             assert ground.wait(timeout=PROCESS_TEST_TIMEOUT_S) == 0, \
                 ground.log_path.read_text()
-            ended_at = time.monotonic()
             time.sleep(2.5)                            # the relay's queue drains (delay 1.5 s)
             for process in relays:
                 assert process.stop() == 0, process.log_path.read_text()
@@ -193,8 +194,7 @@ def matrix(tmp_path_factory):
             sessions = {key[0] for key in listener.arrivals[arrivals_before:]}
             cases[name] = dict(before=before, after=listener.settled_counts(), reports=reports,
                                sessions=sessions,
-                               relay_back_before_end_s=(None if back_at is None
-                                                        else ended_at - back_at))
+                               relay_back_at=back_at)
         assert onboard.stop(timeout_s=PROCESS_TEST_TIMEOUT_S) == 0, \
             onboard.log_path.read_text()
     finally:
@@ -257,11 +257,12 @@ def test_every_forwarded_packet_was_examined_and_exactly_the_newer_ones_accepted
         assert len(case["reports"]) == 2          # a second relay after the outage
         sent = [key for key in listener.sent if key[0] == session]
         assert len(sent) - len(expected) >= 4     # the packets of the 2 s outage are gone
-        # Measured, not assumed: when the second relay was up a second before the ground
-        # ended, packets after the outage reached the robot too.
-        # (every forwarded packet was examined: the sum over both relays, above).
-        if case["relay_back_before_end_s"] > 1.0:
-            assert case["reports"][1]["forwarded"] > 0, case["reports"]
+        # Measured, not assumed: packets the ground sent a second or more after the second
+        # relay was up reached the robot too (every forwarded packet was examined: the sum
+        # over both relays, above). A slowly starting relay may have seen none.
+        later = [key for key in sent if listener.sent_at[key] > case["relay_back_at"] + 1.0]
+        if later:
+            assert case["reports"][1]["forwarded"] > 0, (later, case["reports"])
     bursts = [i for i in range(1, len(taken)) if taken[i] - taken[i - 1] > 1]
     timeout_s = matrix["scenario"].link_guard.timeout_s
     late = [i for i in range(1, len(taken)) if mine[i, 3] - mine[i - 1, 3] > timeout_s]
@@ -280,29 +281,33 @@ def test_every_forwarded_packet_was_examined_and_exactly_the_newer_ones_accepted
         # joins: LinkGuard's TRACK rule) until it reproduces the stream again.
         guard = matrix["guard"]          # command, t, mode, outcome, distance, q…
         tolerance = matrix["scenario"].link_guard.rejoin_tolerance_rad
-        passed, exact = [], 0
+        # passed: commanded in the poll it arrived, in TRACK; close: also within the
+        # re-join tolerance; exact: bit for bit.
+        passed, close, exact = [], [], 0
         for row in mine:
             at = np.flatnonzero(np.abs(guard[:, 1] - row[3]) < 1e-6)
-            passed.append(at.size == 1 and int(guard[at[0], 2]) == MODE_TRACK
-                          and np.max(np.abs(guard[at[0], 5:] - row[4:])) <= tolerance)
+            passed.append(at.size == 1 and int(guard[at[0], 2]) == MODE_TRACK)
+            close.append(passed[-1] and np.max(np.abs(guard[at[0], 5:] - row[4:])) <= tolerance)
             exact += at.size == 1 and np.array_equal(guard[at[0], 5:], row[4:])
-        first = passed.index(True) if True in passed else len(passed)
+        first = close.index(True) if True in close else len(close)
         excused = set()
         for gap in sorted(bursts + late):
             back = next((i for i in range(gap + 1, len(passed)) if passed[i]), len(passed))
             excused.update(range(gap, back))
         unexcused = [i for i in range(first, len(passed)) if i not in excused]
         assert all(passed[i] for i in unexcused), (name, passed, bursts, late)
-        # Enough passed through to mean something. Judged against the timing this run got:
-        # with no timing gap every packet after the join counts (at least 10); after a gap
-        # the guard joins the stream through its limiter for as long as the stream needs,
-        # so only the packets outside those windows are asserted (above).
+        # Judged against the timing this run got. With no timing gap, every packet after the
+        # join is also within the re-join tolerance (bit for bit where the guard reproduces
+        # the stream), and there are at least 10. After a gap the guard catches up with the
+        # stream through its limiter for as long as the stream needs (the distance closes
+        # but need not be monotone), so only "commanded at once, in TRACK" is asserted.
         if not (bursts or late):
-            assert sum(passed) >= 10, (name, passed)
+            assert all(close[first:]), (name, close)
+            assert sum(close) >= 10, (name, close)
         print(f"{name}: {sum(passed)} of {len(passed)} accepted packets commanded at once in "
-              f"TRACK within {tolerance} rad ({exact} bit for bit; the first {first} joined "
-              f"through the limiter; timing gaps: bursts at {bursts}, late at {late}, then "
-              f"{len(excused)} joined)")
+              f"TRACK, {sum(close)} of them within {tolerance} rad, {exact} bit for bit (the "
+              f"first {first} joined through the limiter; timing gaps: bursts at {bursts}, "
+              f"late at {late}, then {len(excused)} joined)")
 
 
 def test_nothing_unsafe_reached_the_robot_in_any_case(matrix):

@@ -109,7 +109,11 @@ def test_onboard_process_accepted_the_commands(two_process_run):
                                    for e in lcm.EventLog(str(log_path), "r"))}
     onboard = _read(out / "onboard_commands.csv")   # accepted, session, seq, t, q…
     assert onboard.shape[0] >= len(messages) - 2
-    np.testing.assert_array_equal(onboard[:, 0], np.arange(1, onboard.shape[0] + 1))
+    # One row per receiver poll that accepted packets (the newest of them): a loaded onboard
+    # process can take two in one poll, so the running count may jump; seqs only increase.
+    assert onboard[0, 0] >= 1 and np.all(np.diff(onboard[:, 0]) >= 1)
+    assert np.all(np.diff(onboard[:, 2]) >= 1)
+    np.testing.assert_array_equal(np.diff(onboard[:, 0]), np.diff(onboard[:, 2]))
     for row in onboard:
         np.testing.assert_array_equal(row[4:], messages[int(row[2])].joint_position_smoothed)
     telemetry = _read(out / "onboard_telemetry.csv")
@@ -117,5 +121,5 @@ def test_onboard_process_accepted_the_commands(two_process_run):
     # The user sees how far off the robot is: the ground's status lines and the onboard report.
     assert "rad from the accepted stream" in ground_log
     report = json.loads((out / "onboard_report.json").read_text())
-    assert report["packets"]["accepted"] == onboard.shape[0] and report["commands"] > 0
+    assert report["packets"]["accepted"] == onboard[-1, 0] and report["commands"] > 0
     assert set(report["time_in_mode_s"]) == {"track", "stopping", "held", "resuming"}
