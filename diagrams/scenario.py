@@ -168,8 +168,9 @@ class Scenario:
         onboard: The flexible-joint plant (its ``arm`` is set from ``arm``).
         command_receiver: The onboard LCM command receiver (two-process runs, and in-process
             runs with ``link.simulate``).
-        link_guard: The onboard link guard: jerk-limited ramp-down when commands stop, and
-            the limited re-join when they resume (same runs as ``command_receiver``).
+        link_guard: The onboard link guard: the FD limits enforced on every command, a
+            jerk-limited ramp-down when commands stop, and the converging re-join when they
+            resume (same runs as ``command_receiver``; ``telesmooth.safety.guard``).
         link: The simulated link of an in-process run.
         lcm_url: LCM URL of the ground/onboard processes.
         publish_offset_s: Delay after each uplink tick at which the packet is published, s.

@@ -263,12 +263,12 @@ def AddOnboardRobot(builder: DiagramBuilder, scenario: Scenario, *,
 
 
 def AddJointCommandSender(builder: DiagramBuilder, ground: GroundHandles, scenario: Scenario,
-                          *, session_id: int = 0, uplink_key: bytes | None = None
-                          ) -> JointCommandSender:
+                          *, session_id: int = 0, uplink_key: bytes | None = None,
+                          onboard_epoch: int = 0) -> JointCommandSender:
     """Adds the uplink's packet former (``lcmt_teleop_joint_command``, signed with a key)."""
     sender = builder.AddNamedSystem("joint_command_sender", JointCommandSender(
         joint_names=ground.joint_names, delay_s=scenario.fifo.delay_s, session_id=session_id,
-        uplink_key=uplink_key))
+        uplink_key=uplink_key, onboard_epoch=onboard_epoch))
     uplink = ground.uplink
     builder.Connect(uplink.get_q_sent_output_port(), sender.get_q_sent_input_port())
     builder.Connect(uplink.get_state_sent_output_port(), sender.get_state_sent_input_port())
@@ -306,16 +306,17 @@ def MakeLinkGuard(scenario: Scenario, *, initial_position_rad,
 
 def AddOnboardCommandPath(builder: DiagramBuilder, scenario: Scenario, *, packets,
                           initial_position_rad, uplink_key: bytes | None = None,
-                          collision_model=None):
+                          collision_model=None, onboard_epoch: int = 0):
     """Adds the onboard receiver (every packet of ``packets`` examined: authentication,
-    order, validity) and the link guard (:func:`MakeLinkGuard`, sharing ``collision_model``
-    if given); returns (receiver, guard). Connect ``guard.get_q_commanded_output_port()`` to
-    the robot."""
+    freshness — ``onboard_epoch``, the session order —, validity) and the link guard
+    (:func:`MakeLinkGuard`, sharing ``collision_model`` if given); returns (receiver, guard).
+    Connect ``guard.get_q_commanded_output_port()`` to the robot."""
     arm = scenario.arm_description
     receiver = builder.AddNamedSystem("joint_command_receiver", JointCommandReceiver(
         scenario.command_receiver, joint_names=arm.joint_names,
         lower_rad=arm.joint_lower_rad, upper_rad=arm.joint_upper_rad,
-        initial_position_rad=initial_position_rad, uplink_key=uplink_key))
+        initial_position_rad=initial_position_rad, uplink_key=uplink_key,
+        onboard_epoch=onboard_epoch))
     builder.Connect(packets, receiver.get_packets_input_port())
     guard = builder.AddNamedSystem("link_guard", MakeLinkGuard(
         scenario, initial_position_rad=initial_position_rad, collision_model=collision_model))
@@ -355,6 +356,8 @@ def add_link_loggers(builder, receiver: JointCommandReceiver, guard: LinkGuard,
                                                period_s),
         "guard_stop_outcome": LogVectorOutput(guard.get_stop_outcome_output_port(), builder,
                                               period_s),
+        "guard_stream_distance": LogVectorOutput(guard.get_stream_distance_output_port(),
+                                                 builder, period_s),
     }
 
 
@@ -470,12 +473,17 @@ def MakeTeleoperationDiagram(scenario: Scenario, *, meshcat=None) -> Teleoperati
 
 
 def MakeGroundDiagram(scenario: Scenario, *, lcm: DrakeLcm, session_id: int = 0,
-                      uplink_key: bytes | None = None) -> TeleoperationHandles:
+                      uplink_key: bytes | None = None, session_nonce: int | None = None,
+                      onboard_epoch: int = 0) -> TeleoperationHandles:
     """The ground process: ground station → TELEOP_JOINT_COMMAND (+ collision events), and
     the link status from ONBOARD_JOINT_STATUS (:class:`LinkMonitor`).
 
-    ``session_id`` identifies this run (the onboard side accepts a newer session from its
-    first packet); ``uplink_key`` signs every packet (None: unsigned, in-process tests only).
+    Every packet carries the robot's epoch and this run's session
+    (:mod:`telesmooth.link.session`). With ``session_nonce`` (the ground process) both come
+    from the robot's telemetry through the monitor: ``onboard_epoch`` and ``session_id`` are
+    what the telemetry read before the start said (0: none yet; packets are then withheld
+    until telemetry arrives); a restarted robot is picked up from its telemetry. Without it
+    (tests) they are fixed. ``uplink_key`` signs every packet (None: unsigned).
     """
     from telesmooth.systems.link_monitor import LinkMonitor
     builder = DiagramBuilder()
@@ -485,7 +493,7 @@ def MakeGroundDiagram(scenario: Scenario, *, lcm: DrakeLcm, session_id: int = 0,
     # The packet formed at t_k is published at t_k + publish_offset_s (Drake publishes the
     # pre-update state at an event time, so an offset of 0 would send packet k−1).
     sender = AddJointCommandSender(builder, ground, scenario, session_id=session_id,
-                                   uplink_key=uplink_key)
+                                   uplink_key=uplink_key, onboard_epoch=onboard_epoch)
     command_publisher = builder.AddNamedSystem("joint_command_publisher",
         LcmPublisherSystem.Make(TELEOP_JOINT_COMMAND, lcmt_teleop_joint_command, lcm,
                                 publish_period=period,
@@ -506,7 +514,12 @@ def MakeGroundDiagram(scenario: Scenario, *, lcm: DrakeLcm, session_id: int = 0,
     builder.Connect(events.get_lcm_message_output_port(), event_publisher.get_input_port())
     telemetry = builder.AddNamedSystem("joint_status_subscriber", LcmSafeSubscriber(
         channel=ONBOARD_JOINT_STATUS, lcm_type=lcmt_onboard_joint_status, lcm=lcm))
-    monitor = builder.AddNamedSystem("link_monitor", LinkMonitor(session_id=session_id))
+    monitor = builder.AddNamedSystem("link_monitor", LinkMonitor(
+        session_id=session_id, session_nonce=session_nonce, onboard_epoch=onboard_epoch))
+    if session_nonce is not None:
+        builder.Connect(monitor.GetOutputPort("onboard_epoch"),
+                        sender.get_onboard_epoch_input_port())
+        builder.Connect(monitor.GetOutputPort("session_id"), sender.get_session_id_input_port())
     builder.Connect(telemetry.get_lcm_message_output_port(), monitor.GetInputPort("telemetry"))
     builder.Connect(telemetry.get_message_count_output_port(),
                     monitor.GetInputPort("telemetry_count"))
@@ -514,7 +527,7 @@ def MakeGroundDiagram(scenario: Scenario, *, lcm: DrakeLcm, session_id: int = 0,
                     monitor.GetInputPort("sequence_number"))
     logs = add_ground_loggers(builder, ground, scenario)
     for name in ("link_status", "telemetry_age", "unacknowledged", "onboard_guard_mode",
-                 "onboard_counts"):
+                 "onboard_counts", "stream_distance"):
         logs[name] = LogVectorOutput(monitor.GetOutputPort(name), builder, 0.05)
     diagram = builder.Build()
     diagram.set_name("ground")
@@ -523,8 +536,8 @@ def MakeGroundDiagram(scenario: Scenario, *, lcm: DrakeLcm, session_id: int = 0,
 
 
 def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm, initial_position_rad=None,
-                       uplink_key: bytes | None = None,
-                       uplink_lcm=None) -> TeleoperationHandles:
+                       uplink_key: bytes | None = None, uplink_lcm=None,
+                       onboard_epoch: int = 0) -> TeleoperationHandles:
     """The onboard process: TELEOP_JOINT_COMMAND → receiver → link guard → plant → telemetry.
 
     Every packet is examined (:class:`JointCommandReceiver`: authentication when
@@ -538,6 +551,8 @@ def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm, initial_position_ra
     uplink subscription, which then queues a burst of packets instead of keeping one
     (:mod:`~telesmooth.systems.lcm_safe_subscriber`); the onboard process uses a receiver,
     which also counts the packets lost before decoding.
+    ``onboard_epoch``: this run's epoch (:func:`telesmooth.link.session.new_epoch`),
+    announced in the telemetry; only commands that carry it are accepted.
     """
     arm = scenario.arm_description
     if initial_position_rad is None:
@@ -554,12 +569,13 @@ def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm, initial_position_ra
                        else scenario.command_receiver.poll_period_s)))
     receiver, guard = AddOnboardCommandPath(
         builder, scenario, packets=subscriber.get_packets_output_port(),
-        initial_position_rad=initial_position_rad, uplink_key=uplink_key)
+        initial_position_rad=initial_position_rad, uplink_key=uplink_key,
+        onboard_epoch=onboard_epoch)
     robot = AddOnboardRobot(builder, scenario, initial_position_rad=initial_position_rad)
     builder.Connect(guard.get_q_commanded_output_port(), robot.GetInputPort("q_commanded"))
     tracker_period = scenario.onboard.tracker.period_s
     status = builder.AddNamedSystem("joint_status_sender", JointStatusSender(
-        num_joints=arm.num_joints, period_s=tracker_period))
+        num_joints=arm.num_joints, period_s=tracker_period, onboard_epoch=onboard_epoch))
     builder.Connect(robot.GetOutputPort("q_link"), status.get_q_link_input_port())
     builder.Connect(robot.GetOutputPort("q_motor"), status.get_q_motor_input_port())
     builder.Connect(robot.GetOutputPort("position_measured"),
@@ -569,6 +585,8 @@ def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm, initial_position_ra
         builder.Connect(receiver.GetOutputPort(name), status.GetInputPort(name))
     builder.Connect(guard.get_q_commanded_output_port(), status.get_q_commanded_input_port())
     builder.Connect(guard.get_guard_mode_output_port(), status.get_guard_mode_input_port())
+    builder.Connect(guard.get_stream_distance_output_port(),
+                    status.get_stream_distance_input_port())
     status_publisher = builder.AddNamedSystem("joint_status_publisher",
         LcmPublisherSystem.Make(ONBOARD_JOINT_STATUS, lcmt_onboard_joint_status, lcm,
                                 publish_period=tracker_period,

@@ -15,10 +15,11 @@ import signal
 import sys
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["run_ground", "run_onboard"]
+__all__ = ["RobotTelemetry", "onboard_report", "robot_telemetry", "run_ground", "run_onboard"]
 
 
 def _log(message: str) -> None:
@@ -76,10 +77,24 @@ def _with_authentication(scenario, uplink_key):
         scenario.command_receiver, authentication=mode))
 
 
+class RobotTelemetry(NamedTuple):
+    """What a ground process reads from the robot before it starts."""
+
+    pose: np.ndarray        # the robot's commanded pose, rad
+    onboard_epoch: int      # the robot's epoch (its commands must carry it)
+    last_session: int       # the session of the last command it accepted (0: none)
+
+
 def robot_commanded_pose(lcm_url: str, scenario, wait_s: float):
-    """The robot's commanded pose from its telemetry (ONBOARD_JOINT_STATUS), or None if no
-    valid telemetry arrives within ``wait_s`` (finite, the arm's joint count, within its
-    joint limits)."""
+    """The robot's commanded pose from its telemetry (``robot_telemetry``), or None."""
+    telemetry = robot_telemetry(lcm_url, scenario, wait_s)
+    return None if telemetry is None else telemetry.pose
+
+
+def robot_telemetry(lcm_url: str, scenario, wait_s: float) -> RobotTelemetry | None:
+    """The robot's commanded pose, epoch and last accepted session from its telemetry
+    (ONBOARD_JOINT_STATUS), or None if no valid telemetry arrives within ``wait_s`` (finite,
+    the arm's joint count, within its joint limits)."""
     import lcm as lcm_module
 
     from telesmooth.diagrams.channels import ONBOARD_JOINT_STATUS
@@ -96,7 +111,8 @@ def robot_commanded_pose(lcm_url: str, scenario, wait_s: float):
         q = np.asarray(msg.joint_position_commanded, dtype=float)
         if q.shape == (arm.num_joints,) and np.all(np.isfinite(q)) and np.all(
                 q >= arm.joint_lower_rad) and np.all(q <= arm.joint_upper_rad):
-            found.append(q)
+            found.append(RobotTelemetry(q, int(msg.onboard_epoch),
+                                        int(msg.last_command_session_id)))
 
     bus = lcm_module.LCM(lcm_url)
     subscription = bus.subscribe(ONBOARD_JOINT_STATUS, handle)
@@ -123,43 +139,66 @@ def _write_rows(path: Path, header, rows) -> None:
 def run_ground(scenario, *, lcm_url: str, duration_s: float | None, realtime: float,
                out: Path | None, uplink_key: bytes | None = None,
                resume_wait_s: float = 0.0) -> int:
-    """The ground process. Its session id is the wall clock at start (µs), so the robot
-    takes a restarted ground process as newer; with ``resume_wait_s`` > 0 it first waits for
-    the robot's telemetry and starts from the robot's commanded pose (no jump on restart)."""
+    """The ground process. Its commands carry the robot's epoch and a session after the one
+    the robot accepted last, both from the robot's telemetry (:mod:`telesmooth.link.session`;
+    until telemetry arrives nothing is addressed to the robot); with ``resume_wait_s`` > 0 it
+    first waits for that telemetry and starts from the robot's commanded pose (no jump on
+    restart)."""
     from pydrake.lcm import DrakeLcm
     from pydrake.systems.analysis import Simulator
 
     from telesmooth.diagrams.simulation import run_duration_s
     from telesmooth.diagrams.teleoperation import MakeGroundDiagram, uplink_packets
+    from telesmooth.link.session import new_ground_nonce, next_session, session_counter
+    from telesmooth.systems.link_guard import GUARD_MODES
     from telesmooth.systems.link_monitor import LINK_STATUSES
 
     _check_url(lcm_url)
+    nonce = new_ground_nonce()
+    epoch, session_id = 0, 0
     if resume_wait_s > 0:
-        pose = robot_commanded_pose(lcm_url, scenario, resume_wait_s)
-        if pose is None:
+        telemetry = robot_telemetry(lcm_url, scenario, resume_wait_s)
+        if telemetry is None:
             _log(f"ground: no robot telemetry within {resume_wait_s:.1f} s; starting from the "
                  "scenario's initial pose")
         else:
+            pose = telemetry.pose
             _log(f"ground: resuming from the robot's commanded pose {np.round(pose, 6).tolist()}")
             scenario = dataclasses.replace(
                 scenario, initial_position_rad=tuple(float(v) for v in pose))
-    session_id = time.time_ns() // 1000
+            epoch = telemetry.onboard_epoch
+            session_id = next_session(telemetry.last_session, nonce) if epoch else 0
     lcm = DrakeLcm(lcm_url)
-    handles = MakeGroundDiagram(scenario, lcm=lcm, session_id=session_id, uplink_key=uplink_key)
+    handles = MakeGroundDiagram(scenario, lcm=lcm, session_id=session_id,
+                                uplink_key=uplink_key, session_nonce=nonce,
+                                onboard_epoch=epoch)
     duration_s = run_duration_s(scenario, handles.ground.recording, duration_s)
-    _log(f"ground: publishing on {lcm_url} for {duration_s:.2f} s (session {session_id}, "
-         f"{'signed' if uplink_key is not None else 'UNSIGNED'})")
+    _log(f"ground: publishing on {lcm_url} for {duration_s:.2f} s (ground run {nonce:08x}, "
+         f"{'signed' if uplink_key is not None else 'UNSIGNED'}; robot epoch "
+         + (f"{epoch:013x}, session counter {session_counter(session_id)})" if epoch else
+            "not seen yet: commands are withheld until its telemetry arrives)"))
     simulator = Simulator(handles.diagram)
     monitor = handles.diagram.GetSubsystemByName("link_monitor")
 
     def link_text():
         context = monitor.GetMyContextFromRoot(simulator.get_context())
-        status = LINK_STATUSES[int(monitor.GetOutputPort("link_status").Eval(context)[0])]
-        counts = monitor.GetOutputPort("onboard_counts").Eval(context).astype(int)
-        age = monitor.GetOutputPort("telemetry_age").Eval(context)[0]
-        return (f"link {status} (telemetry age {age:.2f} s, unacknowledged "
-                f"{int(monitor.GetOutputPort('unacknowledged').Eval(context)[0])}, onboard "
-                f"accepted {counts[0]}, rejected invalid/auth {counts[1]}/{counts[2]}, dropped "
+
+        def value(name):
+            return monitor.GetOutputPort(name).Eval(context)
+
+        status = LINK_STATUSES[int(value("link_status")[0])]
+        counts = value("onboard_counts").astype(int)
+        age = value("telemetry_age")[0]
+        mode = int(value("onboard_guard_mode")[0])
+        robot = ("robot: no telemetry" if mode < 0 else
+                 f"robot {GUARD_MODES[mode]}, {value('stream_distance')[0]:.4f} rad from the "
+                 "accepted stream")
+        mine, theirs = int(value("session_id")[0]), int(value("robot_session")[0])
+        if mode >= 0 and theirs != mine and session_counter(theirs) >= session_counter(mine):
+            robot += "; it follows ANOTHER ground session"
+        return (f"link {status}; {robot} (telemetry age {age:.2f} s, unacknowledged "
+                f"{int(value('unacknowledged')[0])}, onboard accepted {counts[0]}, rejected "
+                f"invalid/auth/session {counts[1]}/{counts[2]}/{counts[6]}, dropped "
                 f"duplicate/stale {counts[3]}/{counts[4]}, undecodable {counts[5]})")
 
     _advance(simulator, duration_s, realtime, "ground", status=link_text)
@@ -175,11 +214,13 @@ def run_ground(scenario, *, lcm_url: str, duration_s: float | None, realtime: fl
 
 def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
                 out: Path | None, uplink_key: bytes | None = None) -> int:
-    """The onboard process; with ``uplink_key`` only authentic commands are accepted."""
+    """The onboard process; with ``uplink_key`` only authentic commands are accepted, and
+    only those addressed to this run's fresh random epoch (announced in the telemetry)."""
     from pydrake.lcm import DrakeLcm
     from pydrake.systems.analysis import Simulator
 
     from telesmooth.diagrams.teleoperation import MakeOnboardDiagram
+    from telesmooth.link.session import new_epoch
     from telesmooth.systems.laser_tracker import tracker_record
     from telesmooth.systems.link_guard import GUARD_MODES
 
@@ -195,10 +236,11 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
                   else None)
     if uplink_lcm is not None:
         _log(f"onboard: uplink receive buffer {uplink_lcm.receive_buffer_bytes} bytes")
+    epoch = new_epoch()
     handles = MakeOnboardDiagram(scenario, lcm=lcm, uplink_key=uplink_key,
-                                 uplink_lcm=uplink_lcm)
+                                 uplink_lcm=uplink_lcm, onboard_epoch=epoch)
     _log(f"onboard: listening on {lcm_url} for {duration_s:.2f} s (authentication "
-         f"{scenario.command_receiver.authentication})")
+         f"{scenario.command_receiver.authentication}, epoch {epoch:013x})")
     simulator = Simulator(handles.diagram)
     receiver, guard = handles.onboard.receiver, handles.onboard.guard
     subscriber = handles.diagram.GetSubsystemByName("joint_command_subscriber")
@@ -211,11 +253,13 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
         root = simulator.get_context()
         context = receiver.GetMyContextFromRoot(root)
         counts = receiver.rejection_counts(context)
-        mode = GUARD_MODES[int(guard.get_guard_mode_output_port().Eval(
-            guard.GetMyContextFromRoot(root))[0])]
+        guard_context = guard.GetMyContextFromRoot(root)
+        mode = GUARD_MODES[int(guard.get_guard_mode_output_port().Eval(guard_context)[0])]
+        distance = guard.get_stream_distance_output_port().Eval(guard_context)[0]
         last = receiver.get_last_rejection_output_port().Eval(context)
         lost = dropped(root)
-        return (f"guard {mode}; packets " + ", ".join(f"{k} {v}" for k, v in counts.items())
+        return (f"guard {mode}, {distance:.4f} rad from the accepted stream; packets "
+                + ", ".join(f"{k} {v}" for k, v in counts.items())
                 + ("" if lost != lost else f", lost before decoding {int(lost)}")
                 + (f"; last rejection: {last}" if last else ""))
 
@@ -230,6 +274,17 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
         from telesmooth.atomic_files import write_text
 
         write_text(Path(out) / "onboard_counts.json", json.dumps(counts, indent=1))
+        report = onboard_report(handles, context)
+        report["onboard_epoch"] = epoch
+        report["packets"] = counts
+        write_text(Path(out) / "onboard_report.json", json.dumps(report, indent=1) + "\n")
+        shares = report["time_in_mode_s"]
+        _log(f"onboard: guard tracked the stream on {100 * report['tracking_share']:.1f} % of "
+             f"its ticks from 1 s after the first packet to the last "
+             f"({report['ticks_counted']} ticks); time per mode "
+             + ", ".join(f"{k} {v:.2f} s" for k, v in shares.items())
+             + f"; distance to the accepted stream max {report['stream_distance_rad']['max']:.4f}"
+             f" rad, mean {report['stream_distance_rad']['mean']:.4f} rad")
         tracker = tracker_record(handles.logs["tracker"].FindLog(context).data().T)
         _write_rows(Path(out) / "onboard_telemetry.csv",
                     ["t"] + [f"q_link_{j}" for j in names] + ["tool_x", "tool_y", "tool_z"],
@@ -244,8 +299,11 @@ def write_onboard_logs(out: Path, handles, context, names) -> None:
     accepted a burst of k packets, e.g. after the process fell behind the wall clock, makes it
     jump by k);
     onboard_guard.csv: one row per guard command (count, time, mode, stop outcome of the last
-    stop plan, q) — what reached the robot's interpolator. Modes and outcomes are indices in
-    ``GUARD_MODES`` and ``STOP_OUTCOMES``."""
+    stop plan, the distance of the command to the newest accepted packet in rad, q) — what
+    reached the robot's interpolator. Modes and outcomes are indices in ``GUARD_MODES`` and
+    ``STOP_OUTCOMES``;
+    onboard_ticks.csv: one row per guard tick (every period_s): time, mode, distance to the
+    accepted stream (rad), packets accepted so far."""
     from telesmooth.diagrams.teleoperation import first_sample_indices
 
     logs = handles.logs
@@ -263,8 +321,67 @@ def write_onboard_logs(out: Path, handles, context, names) -> None:
     guard_count = guard_log.data()[0]
     mode = logs["guard_mode"].FindLog(context).data()[0]
     outcome = logs["guard_stop_outcome"].FindLog(context).data()[0]
+    distance = logs["guard_stream_distance"].FindLog(context).data()[0]
     commanded = logs["guard_q_commanded"].FindLog(context).data().T
-    rows = [[guard_count[i], guard_log.sample_times()[i], mode[i], outcome[i], *commanded[i]]
-            for i in first_sample_indices(guard_count)]
+    rows = [[guard_count[i], guard_log.sample_times()[i], mode[i], outcome[i], distance[i],
+             *commanded[i]] for i in first_sample_indices(guard_count)]
     _write_rows(out / "onboard_guard.csv",
-                ["command", "t", "mode", "stop_outcome"] + [f"q_{j}" for j in names], rows)
+                ["command", "t", "mode", "stop_outcome", "stream_distance_rad"]
+                + [f"q_{j}" for j in names], rows)
+    # onboard_ticks.csv: the guard at each of its ticks (every period_s): time, mode, the
+    # distance to the accepted stream, packets accepted so far.
+    times = logs["guard_mode"].FindLog(context).sample_times()
+    period = handles.scenario.link_guard.period_s
+    ticks = np.searchsorted(times, np.arange(0.0, times[-1] + 1e-9, period) - 1e-9) \
+        if len(times) else np.zeros(0, dtype=int)
+    _write_rows(out / "onboard_ticks.csv", ["t", "mode", "stream_distance_rad", "accepted"],
+                ([times[i], mode[i], distance[i], count[i]] for i in ticks))
+
+
+def onboard_report(handles, context) -> dict:
+    """What the onboard guard did, from its logs (one sample per poll):
+
+    * ``time_in_mode_s``: seconds per guard mode over the whole run;
+    * ``tracking_share``: the share of the guard's ticks (one per period_s) in TRACK from
+      1 s after the first accepted packet to the last accepted packet (while a ground was
+      sending; ``ticks_counted`` of them), the figure the two-process test judges;
+    * ``stream_distance_rad``: max, mean and 95th percentile over the same window of the
+      distance between the robot's command and the newest accepted packet;
+    * ``commands``, ``stops``: commands issued, and how many stops the guard planned (by
+      outcome)."""
+    from telesmooth.safety.stop import STOP_OUTCOMES
+    from telesmooth.systems.link_guard import GUARD_MODES
+
+    logs = handles.logs
+    scenario = handles.scenario
+    poll = scenario.command_receiver.poll_period_s
+    period = scenario.link_guard.period_s
+    mode_log = logs["guard_mode"].FindLog(context)
+    times, mode = mode_log.sample_times(), mode_log.data()[0].astype(int)
+    distance = logs["guard_stream_distance"].FindLog(context).data()[0]
+    count = logs["accepted_count"].FindLog(context).data()[0]
+    outcome = logs["guard_stop_outcome"].FindLog(context).data()[0].astype(int)
+    commands = logs["guard_command_count"].FindLog(context).data()[0]
+    report = {"time_in_mode_s": {name: float(np.sum(mode == k) * poll)
+                                 for k, name in enumerate(GUARD_MODES)},
+              "commands": int(commands[-1]) if len(commands) else 0}
+    starts = np.flatnonzero((mode[1:] == 1) & (mode[:-1] != 1)) + 1   # entering STOPPING
+    fallbacks = np.flatnonzero((mode[1:] == 2) & (mode[:-1] != 2)) + 1
+    planned = [int(outcome[i]) for i in np.concatenate([starts, fallbacks]) if outcome[i] > 0]
+    report["stops"] = {STOP_OUTCOMES[k]: planned.count(k) for k in sorted(set(planned))}
+    accepted = np.flatnonzero(np.diff(np.concatenate([[0.0], count])) > 0)
+    if accepted.size == 0:
+        report.update(tracking_share=0.0, ticks_counted=0,
+                      stream_distance_rad={"max": 0.0, "mean": 0.0, "p95": 0.0})
+        return report
+    first, last = times[accepted[0]], times[accepted[-1]]
+    ticks = np.arange(first + 1.0, last + 1e-9, period)
+    rows = np.clip(np.searchsorted(times, ticks), 0, len(times) - 1)
+    window = (times >= first) & (times <= last)
+    report["tracking_share"] = float(np.mean(mode[rows] == 0)) if rows.size else 0.0
+    report["ticks_counted"] = int(rows.size)
+    report["first_packet_t_s"], report["last_packet_t_s"] = float(first), float(last)
+    report["stream_distance_rad"] = {"max": float(np.max(distance[window])),
+                                     "mean": float(np.mean(distance[window])),
+                                     "p95": float(np.percentile(distance[window], 95))}
+    return report

@@ -14,18 +14,19 @@ the smoother consumes the same samples at the same ticks, so smoothing adds no d
 from __future__ import annotations
 
 import dataclasses
+import logging
 from typing import NamedTuple
 
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
-from telesmooth.systems.collision_stop import (
-    SENT_HISTORY_LENGTH,
-    STOP_OUTCOMES,
-    CollisionStopPlanner,
-)
+from telesmooth.safety.limiter import HISTORY_LENGTH
+from telesmooth.safety.state_codec import VectorCodec
+from telesmooth.safety.stop import StopOutcome, StopParams, plan_stop
 from telesmooth.systems.timing import check_period, delay_in_samples
+
+_logger = logging.getLogger(__name__)
 
 __all__ = ["DelayFifo", "DelayFifoConfig", "FIFO_COLLISION_POLICIES", "FIFO_RELEASE_POLICIES"]
 
@@ -95,6 +96,17 @@ class DelayFifoConfig:
     def max_stop_ticks(self) -> int:
         """The most commands a collision stop may take."""
         return delay_in_samples(self.max_stop_duration_s, self.period_s)
+
+
+class _Contingency(NamedTuple):
+    """The stop the FIFO would play if a collision came at the next tick, planned between
+    ticks from the sent history it will have then."""
+
+    history: np.ndarray           # (3, J) [p_{k−3}, p_{k−2}, p_{k−1}] it was planned from
+    outcome: StopOutcome
+    length: int                   # N, the planned commands (1 for a hold fallback)
+    commands: np.ndarray          # (max_stop_ticks, J), the first N rows used
+    braking_distance: np.ndarray  # (J,)
 
 
 class _Tick(NamedTuple):
@@ -174,8 +186,8 @@ class DelayFifo(LeafSystem):
         q_newest = window_k[L];  q_delayed = window_k[0];  b ← window_k[1:]
 
     With ``on_collision = "stop"``, at a collision tick that starts a hold (h_{k−1} = 0) the
-    plan P = [P_0 … P_{N−1}] is made from [p_{k−3}, p_{k−2}, p_{k−1}] (a hold fallback is
-    N = 1, P_0 = q_s) and i ← 0; then
+    plan P = [P_0 … P_{N−1}] from [p_{k−3}, p_{k−2}, p_{k−1}] (planned before the tick, see
+    below; a hold fallback is N = 1, P_0 = q_s) is taken and i ← 0; then
 
         h_k = collision_k  or  (h_{k−1} and (not released_k or i < N))
         window_k = [P_i, …, P_i], i ← i + 1   if h_k and i < N   (the stop: the smoother
@@ -186,20 +198,32 @@ class DelayFifo(LeafSystem):
     continue from the rest pose, and ``holding`` (hence the uplink's MODE_HOLD) is 1 during
     the stop as during the hold.
 
+    **The plan is made between ticks, never in an output calculation.** At the middle of
+    every period (t_k + period_s/2, a second periodic update) the FIFO plans the stop
+    P = :func:`~telesmooth.safety.stop.plan_stop` from the history [p_{k−2}, p_{k−1}, p_k]
+    it will have at the next tick (p_k = ``q_sent``, which the uplink set at t_k and holds
+    until t_{k+1}), and keeps it in its state as the *contingency*: what a collision at
+    t_{k+1} will play (planned only when that history changed, and not during a hold). At the
+    tick the outputs only read it. A collision tick whose history is not the contingency's
+    (a tick forced without the mid-period update) falls back to the hold (outcome
+    ``"hold"``, logged): nothing unplanned is sent. At t = 0 the contingency is the stop
+    from rest at ``initial_position_rad``.
+
     A non-finite ``q_target`` is never queued: it is treated like a collision (hold).
     At t = 0 the queue holds ``initial_position_rad`` (the robot's pose), so the first L
     ticks send that pose: the robot starts at rest.
     """
 
     def __init__(self, config: DelayFifoConfig = DelayFifoConfig(), *, num_joints: int,
-                 initial_position_rad=None, collision_stop: CollisionStopPlanner | None = None):
+                 initial_position_rad=None, collision_stop: StopParams | None = None):
         """Declares ports, state and the tick.
 
         Args:
             config: Period, delay, release and collision policies.
             num_joints: J.
             initial_position_rad: The robot's start pose (J,), rad; default zeros.
-            collision_stop: The stop planner (limits and the pre-simulator's pose check);
+            collision_stop: The stop parameters (limits and the pre-simulator's pose check,
+                :func:`~telesmooth.systems.collision_stop.MakeCollisionStopPlanner`);
                 required with ``on_collision = "stop"``, ignored with ``"hold"``.
 
         Raises:
@@ -237,7 +261,7 @@ class DelayFifo(LeafSystem):
             if abs(collision_stop.dt_s - config.period_s) > 1e-12 * config.period_s:
                 raise ValueError(f"collision_stop.dt_s = {collision_stop.dt_s!r} must equal "
                                  f"DelayFifoConfig.period_s = {config.period_s!r}")
-            self._planner = collision_stop
+            self._planner = collision_stop  # immutable parameters, no state
 
         self._q_target_input = self.DeclareVectorInputPort("q_target", n)
         self._collision_input = self.DeclareVectorInputPort("collision_detected", 1)
@@ -252,12 +276,18 @@ class DelayFifo(LeafSystem):
             self._max_stop_ticks = config.max_stop_ticks
             # [p_{k−3}, p_{k−2}] of the sent commands; the robot starts at rest at q0.
             self._sent_history_state = self.DeclareDiscreteState(
-                np.tile(q0, SENT_HISTORY_LENGTH - 1))
+                np.tile(q0, HISTORY_LENGTH - 1))
             self._stop_plan_state = self.DeclareDiscreteState(
                 np.zeros(self._max_stop_ticks * n))
             # [outcome index, plan length N, next plan index i]
             self._stop_info_state = self.DeclareDiscreteState(np.zeros(3))
             self._braking_distance_state = self.DeclareDiscreteState(np.zeros(n))
+            initial = self._plan_contingency(np.tile(q0, (HISTORY_LENGTH, 1)))
+            self._contingency_codec = VectorCodec(initial)
+            self._contingency_state = self.DeclareDiscreteState(
+                self._contingency_codec.pack(initial))
+            self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.5 * config.period_s,
+                                                    self._update_contingency)
         self._tick_cache = self.DeclareCacheEntry(
             "tick", ValueProducer(allocate=lambda: AbstractValue.Make(object()),
                                   calc=lambda c, value: value.set_value(self._compute_tick(c))))
@@ -297,8 +327,8 @@ class DelayFifo(LeafSystem):
         return self._config
 
     @property
-    def collision_stop(self) -> CollisionStopPlanner | None:
-        """The stop planner (``on_collision = "stop"``), else None."""
+    def collision_stop(self) -> StopParams | None:
+        """The stop parameters (``on_collision = "stop"``), else None."""
         return self._planner
 
     def get_q_target_input_port(self):
@@ -394,19 +424,24 @@ class DelayFifo(LeafSystem):
         """The tick with ``on_collision = "stop"``: plan at the collision tick that starts a
         hold, play the plan out, then hold at the sent (rest) pose."""
         n, lag = self._num_joints, self._lag
-        earlier = context.get_discrete_state(self._sent_history_state).get_value().reshape(
-            SENT_HISTORY_LENGTH - 1, n)
-        history = np.vstack([earlier, q_sent[None, :]])  # p_{k−3}, p_{k−2}, p_{k−1}
+        history = self._history(context, q_sent)  # p_{k−3}, p_{k−2}, p_{k−1}
         plan = context.get_discrete_state(self._stop_plan_state).get_value().reshape(
             self._max_stop_ticks, n)
         info = context.get_discrete_state(self._stop_info_state).get_value().copy()
         distance = context.get_discrete_state(self._braking_distance_state).get_value()
         if collision and not holding:
-            result = self._planner.plan(history, max_ticks=self._max_stop_ticks)
-            plan = np.zeros_like(plan)
-            plan[:result.ticks_to_rest] = result.commands
-            info = np.array([STOP_OUTCOMES.index(result.outcome), result.ticks_to_rest, 0.0])
-            distance = result.braking_distance
+            contingency = self._contingency_codec.unpack(
+                context.get_discrete_state(self._contingency_state).get_value())
+            if np.array_equal(contingency.history, history):
+                plan, length = contingency.commands, contingency.length
+                outcome, distance = contingency.outcome, contingency.braking_distance
+            else:
+                _logger.warning("%s: collision at t = %.3f s with no stop planned for this "
+                                "history (a tick forced without the mid-period update): hold",
+                                self.get_name() or "DelayFifo", context.get_time())
+                plan, length = np.tile(q_sent, (self._max_stop_ticks, 1)), 1
+                outcome, distance = StopOutcome.HOLD, np.zeros(n)
+            info = np.array([float(outcome), float(length), 0.0])
         length, next_index = int(info[1]), int(info[2])
         stopping = next_index < length
         hold = collision or (holding and (not released or stopping))
@@ -422,6 +457,38 @@ class DelayFifo(LeafSystem):
             clutch_released = False
         return _Tick(window, hold, clutch_released, sent_history=history[1:], stop_plan=plan,
                      stop_info=info, braking_distance=np.array(distance, dtype=float))
+
+    def _history(self, context, q_sent) -> np.ndarray:
+        """[p_{k−3}, p_{k−2}, p_{k−1}]: the two sent commands in the state, then ``q_sent``."""
+        earlier = context.get_discrete_state(self._sent_history_state).get_value().reshape(
+            HISTORY_LENGTH - 1, self._num_joints)
+        return np.vstack([earlier, np.asarray(q_sent, dtype=float)[None, :]])
+
+    def _plan_contingency(self, history) -> _Contingency:
+        """The stop from ``history`` (3, J), in the form kept in the state."""
+        plan = plan_stop(self._planner, history, max_ticks=self._max_stop_ticks)
+        commands = np.zeros((self._max_stop_ticks, self._num_joints))
+        commands[:plan.ticks_to_rest] = plan.commands
+        return _Contingency(history=np.array(history, dtype=float), outcome=plan.outcome,
+                            length=plan.ticks_to_rest, commands=commands,
+                            braking_distance=np.array(plan.braking_distance, dtype=float))
+
+    def _update_contingency(self, context, discrete_state):
+        """Mid-period: plans the stop a collision at the next tick would play (class
+        docstring), unless holding or the history is the one already planned from."""
+        holding = context.get_discrete_state(self._hold_state).get_value()[0] > 0.5
+        if holding:
+            return
+        if self._q_sent_input.HasValue(context):
+            q_sent = np.asarray(self._q_sent_input.Eval(context), dtype=float)
+        else:
+            q_sent = context.get_discrete_state(self._last_delayed_state).get_value()
+        history = self._history(context, q_sent)
+        stored = context.get_discrete_state(self._contingency_state).get_value()
+        if np.array_equal(self._contingency_codec.unpack(stored).history, history):
+            return
+        discrete_state.get_mutable_vector(self._contingency_state).SetFromVector(
+            self._contingency_codec.pack(self._plan_contingency(history)))
 
     def _update_queue(self, context, discrete_state):
         tick = self._tick(context)

@@ -7,9 +7,12 @@ classifies it, :func:`classify_joint_command`):
 2. with ``authentication = "required"``, carries a valid HMAC-SHA256 tag over the whole
    message, sequence number and session included (``"auth"``: unsigned or forged; see
    :mod:`telesmooth.link.auth`);
-3. its (session_id, seq) is **newer** than that of the last accepted command (``"duplicate"``:
-   equal, i.e. a duplicated or replayed packet; ``"stale"``: older, i.e. late, reordered or
-   a replay of an earlier packet);
+3. it is **fresh** (:mod:`telesmooth.link.session`): it carries this onboard run's epoch
+   (``"session"`` otherwise: a packet from before an onboard restart), and its
+   (session_id, seq) follows the last accepted command: a newer seq of the same session, or
+   the next session counter (``"duplicate"``: the same packet again, a duplicate or a
+   replay; ``"stale"``: older, i.e. late, reordered or a replay of an earlier packet;
+   ``"session"``: a session counter that skips ahead);
 4. names the robot's joints in order, with finite positions inside the joint limits
    (``"invalid"``).
 
@@ -33,6 +36,7 @@ from pydrake.systems.framework import LeafSystem
 
 from telesmooth.lcm_types import decode_exact, lcmt_teleop_joint_command
 from telesmooth.link.auth import check_key, verify
+from telesmooth.link.session import EPOCH_BITS, classify_session
 from telesmooth.systems.timing import check_period
 
 __all__ = [
@@ -48,7 +52,7 @@ __all__ = [
 AUTHENTICATION_MODES = ("off", "required")
 """``JointCommandReceiverConfig.authentication``: ``"off"`` only for in-process simulation."""
 
-REJECTION_CLASSES = ("invalid", "auth", "duplicate", "stale", "undecodable")
+REJECTION_CLASSES = ("invalid", "auth", "duplicate", "stale", "undecodable", "session")
 """The ways a packet is not accepted; ``rejection_counts`` is in this order."""
 
 PACKET_CLASSES = ("accepted",) + REJECTION_CLASSES + ("ignored",)
@@ -102,7 +106,7 @@ def check_joint_command(msg, *, joint_names, lower_rad, upper_rad) -> str | None
 
 
 def classify_joint_command(msg, *, last_accepted, joint_names, lower_rad, upper_rad,
-                           key: bytes | None = None) -> tuple[str, str]:
+                           key: bytes | None = None, onboard_epoch: int = 0) -> tuple[str, str]:
     """The class of one decoded packet (see the module docstring) and the reason, for people.
 
     Args:
@@ -110,6 +114,7 @@ def classify_joint_command(msg, *, last_accepted, joint_names, lower_rad, upper_
         last_accepted: (session_id, seq) of the last accepted command, or None before the first.
         joint_names, lower_rad, upper_rad: The robot's joints and limits, rad.
         key: The uplink key; None = authentication off.
+        onboard_epoch: This onboard run's epoch (0 in process).
 
     Returns:
         (class, reason): class in :data:`PACKET_CLASSES`; reason is "" when accepted.
@@ -120,14 +125,13 @@ def classify_joint_command(msg, *, last_accepted, joint_names, lower_rad, upper_
         problem = verify(msg, key)
         if problem is not None:
             return "auth", problem
-    if last_accepted is not None:
-        received = (int(msg.session_id), int(msg.seq))
-        if received == tuple(last_accepted):
-            return "duplicate", (f"(session_id, seq) = {received} was already accepted "
-                                 "(a duplicate or a replay)")
-        if received < tuple(last_accepted):
-            return "stale", (f"(session_id, seq) = {received} is older than the last accepted "
-                             f"{tuple(last_accepted)} (late, reordered or replayed)")
+    if int(msg.onboard_epoch) != int(onboard_epoch):
+        return "session", (f"onboard_epoch = {int(msg.onboard_epoch)} is not this onboard "
+                           f"run's {int(onboard_epoch)} (a packet from before a restart, or a "
+                           "ground that has not read this robot's telemetry yet)")
+    kind, reason = classify_session(msg.session_id, msg.seq, last_accepted)
+    if kind != "accepted":
+        return kind, reason
     problem = check_joint_command(msg, joint_names=joint_names, lower_rad=lower_rad,
                                   upper_rad=upper_rad)
     if problem is not None:
@@ -140,7 +144,7 @@ def classify_joint_command(msg, *, last_accepted, joint_names, lower_rad, upper_
  _ACCEPTED, _COUNTS) = range(9)
 _EXAMINED_SESSION = _COUNTS + len(REJECTION_CLASSES)
 _STATUS_SIZE = _EXAMINED_SESSION + 1
-_FLAGGED = ("invalid", "auth", "undecodable")
+_FLAGGED = ("invalid", "auth", "undecodable", "session")
 
 
 def _is_default(msg) -> bool:
@@ -197,13 +201,14 @@ class JointCommandReceiver(LeafSystem):
       until the first accepted packet.
     - ``last_command_seq``, ``last_command_session``: its seq (−1 before the first) and
       session_id (0 before the first), (1,) each.
-    - ``command_rejected``: 1 if the newest examined packet was invalid, forged/unsigned or
-      undecodable, until a packet is accepted, (1,).
+    - ``command_rejected``: 1 if the newest examined packet was invalid, forged/unsigned,
+      undecodable or of another onboard run or session, until a packet is accepted, (1,).
     - ``command_timeout``: 1 while no packet was accepted for more than ``timeout_s``,
       counted from t = 0 before the first, (1,).
     - ``accepted_count``: packets accepted so far, (1,) (the link guard's trigger).
     - ``rejection_counts``: packets not accepted so far, per class of
-      :data:`REJECTION_CLASSES` (invalid, auth, duplicate, stale, undecodable), (5,).
+      :data:`REJECTION_CLASSES` (invalid, auth, duplicate, stale, undecodable, session),
+      (6,).
     - ``last_rejection``: abstract str, "<class>: <reason>" of the newest packet not accepted
       ("" before any).
 
@@ -214,13 +219,16 @@ class JointCommandReceiver(LeafSystem):
 
     def __init__(self, config: JointCommandReceiverConfig = JointCommandReceiverConfig(), *,
                  joint_names, lower_rad, upper_rad, initial_position_rad,
-                 uplink_key: bytes | None = None):
+                 uplink_key: bytes | None = None, onboard_epoch: int = 0):
         """Args:
             config: Poll period, timeout and the authentication mode.
             joint_names, lower_rad, upper_rad: The robot's joints and limits, rad.
             initial_position_rad: What the robot holds before the first command, rad.
             uplink_key: The shared HMAC key (:func:`telesmooth.link.auth.load_key`); required
                 when ``config.authentication == "required"``, unused otherwise.
+            onboard_epoch: This onboard run's epoch
+                (:func:`telesmooth.link.session.new_epoch`; 0 in process): only commands that
+                carry it are accepted.
 
         Raises:
             ValueError: naming the field (and joint and value) of a bad argument.
@@ -247,6 +255,11 @@ class JointCommandReceiver(LeafSystem):
                     "load the shared key (telesmooth.link.auth.load_key)")
             uplink_key = check_key(uplink_key, field="uplink_key")
         self._key = uplink_key if config.authentication == "required" else None
+        if isinstance(onboard_epoch, bool) or not isinstance(onboard_epoch, (int, np.integer)) \
+                or not 0 <= onboard_epoch < 2**EPOCH_BITS:
+            raise ValueError(f"onboard_epoch = {onboard_epoch!r} must be an integer in "
+                             f"[0, 2^{EPOCH_BITS})")
+        self._epoch = int(onboard_epoch)
         self._config = config
         self._message_input = self.DeclareAbstractInputPort(
             "lcm_message", AbstractValue.Make(lcmt_teleop_joint_command()))
@@ -287,6 +300,11 @@ class JointCommandReceiver(LeafSystem):
     @property
     def joint_names(self) -> tuple[str, ...]:
         return self._joint_names
+
+    @property
+    def onboard_epoch(self) -> int:
+        """The epoch commands must carry (0 in process)."""
+        return self._epoch
 
     def get_lcm_message_input_port(self):
         return self._message_input
@@ -337,7 +355,7 @@ class JointCommandReceiver(LeafSystem):
                                                    int(status[_LAST_SEQ]))
         kind, reason = classify_joint_command(
             msg, last_accepted=last, joint_names=self._joint_names, lower_rad=self._lower,
-            upper_rad=self._upper, key=self._key)
+            upper_rad=self._upper, key=self._key, onboard_epoch=self._epoch)
         if kind == "ignored":
             return
         if kind == "accepted":

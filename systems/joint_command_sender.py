@@ -24,6 +24,8 @@ class JointCommandSender(LeafSystem):
         - send_time
         - state_sent (optional)
         - holding (optional)
+        - onboard_epoch (optional)
+        - session_id (optional)
         output_ports:
         - lcm_message
 
@@ -32,6 +34,11 @@ class JointCommandSender(LeafSystem):
     - ``state_sent``: [q, q̇, q̈, q⃛] of the packet (Uplink ``state_sent``), (4J,); gives the
       velocity field (zero when unconnected).
     - ``holding``: 1 if the packet is a hold (Uplink ``holding_sent``) → ``mode = MODE_HOLD``.
+    - ``onboard_epoch``, ``session_id``: the robot's epoch and this run's session
+      (:class:`~telesmooth.systems.link_monitor.LinkMonitor`, from the telemetry; see
+      :mod:`telesmooth.link.session`); unconnected: the constructor's. While the connected
+      epoch is 0 (no telemetry yet: the robot cannot be addressed) the message carries
+      seq = −1, which the onboard receiver ignores.
     - ``lcm_message``: ``lcmt_teleop_joint_command`` with utime = send_time in µs,
       sample_utime = utime − ``delay_s``, the joint names, positions and velocities,
       ``session_id`` and, with an ``uplink_key``, the HMAC tag
@@ -44,19 +51,21 @@ class JointCommandSender(LeafSystem):
     """
 
     def __init__(self, *, joint_names, delay_s: float, session_id: int = 0,
-                 uplink_key: bytes | None = None):
+                 uplink_key: bytes | None = None, onboard_epoch: int = 0):
         """Args:
             joint_names: The robot's joints, base to tip.
             delay_s: The ground's safety delay (sample_utime = utime − delay), s.
             session_id: This ground run's id (µs since the epoch at process start; 0 in
                 process), so that a restarted ground process is newer than the last one.
             uplink_key: The shared HMAC key; None sends unsigned packets (in-process only).
+            onboard_epoch: The robot's epoch when the ``onboard_epoch`` port is unconnected.
         """
         super().__init__()
         if isinstance(session_id, bool) or not isinstance(session_id, (int, np.integer)) or \
                 not 0 <= session_id < 2**63:
             raise ValueError(f"session_id = {session_id!r} must be an integer in [0, 2^63)")
         self._session_id = int(session_id)
+        self._epoch = int(onboard_epoch)
         self._key = None if uplink_key is None else check_key(uplink_key, field="uplink_key")
         self._joint_names = tuple(str(n) for n in joint_names)
         n = len(self._joint_names)
@@ -70,6 +79,8 @@ class JointCommandSender(LeafSystem):
         self._send_time_input = self.DeclareVectorInputPort("send_time", 1)
         self._state_input = self.DeclareVectorInputPort("state_sent", 4 * n)
         self._holding_input = self.DeclareVectorInputPort("holding", 1)
+        self._epoch_input = self.DeclareVectorInputPort("onboard_epoch", 1)
+        self._session_input = self.DeclareVectorInputPort("session_id", 1)
         self._message_output = self.DeclareAbstractOutputPort(
             "lcm_message", lambda: AbstractValue.Make(lcmt_teleop_joint_command()),
             self._calc_lcm_message)
@@ -88,6 +99,12 @@ class JointCommandSender(LeafSystem):
 
     def get_holding_input_port(self):
         return self._holding_input
+
+    def get_onboard_epoch_input_port(self):
+        return self._epoch_input
+
+    def get_session_id_input_port(self):
+        return self._session_input
 
     def get_lcm_message_output_port(self):
         return self._message_output
@@ -109,6 +126,13 @@ class JointCommandSender(LeafSystem):
         msg.mode = lcmt_teleop_joint_command.MODE_HOLD if holding else \
             lcmt_teleop_joint_command.MODE_TRACK
         msg.session_id = self._session_id
+        msg.onboard_epoch = self._epoch
+        if self._session_input.HasValue(context):
+            msg.session_id = int(round(self._session_input.Eval(context)[0]))
+        if self._epoch_input.HasValue(context):
+            msg.onboard_epoch = int(round(self._epoch_input.Eval(context)[0]))
+            if msg.onboard_epoch == 0:
+                msg.seq = -1    # no telemetry yet: the robot cannot be addressed
         if self._key is not None and msg.seq >= 0:
             msg = sign(msg, self._key)
         output.set_value(msg)

@@ -27,6 +27,7 @@ class JointStatusSender(LeafSystem):
         - last_command_session (optional)
         - q_commanded (optional)
         - guard_mode (optional)
+        - stream_distance (optional)
         - accepted_count (optional)
         - rejection_counts (optional)
         output_ports:
@@ -38,15 +39,19 @@ class JointStatusSender(LeafSystem):
       as do ``last_command_session`` (0), ``accepted_count`` (0) and ``rejection_counts``
       (5 counts in the order of ``joint_command_receiver.REJECTION_CLASSES``; zeros).
     - ``q_commanded``: what the robot is driven to (the link guard's output), rad, (J,);
-      unconnected: ``q_link``. ``guard_mode``: the link guard's mode (0 unconnected).
+      unconnected: ``q_link``. ``guard_mode``: the link guard's mode (0 unconnected);
+      ``stream_distance``: its distance to the accepted stream, rad (0 unconnected).
+    - ``onboard_epoch`` (constructor): this onboard run's epoch, announced in every message
+      (commands must carry it; :mod:`telesmooth.link.session`).
     - ``lcm_message``: utime = the context time in µs; seq counts published messages only
       when published periodically (seq = round(t / period)), so gaps reveal drops.
     """
 
-    def __init__(self, *, num_joints: int, period_s: float = 0.01):
+    def __init__(self, *, num_joints: int, period_s: float = 0.01, onboard_epoch: int = 0):
         super().__init__()
         if num_joints < 1:
             raise ValueError(f"num_joints = {num_joints!r} must be positive")
+        self._epoch = int(onboard_epoch)
         self._n = int(num_joints)
         self._period = float(period_s)
         self._q_link_input = self.DeclareVectorInputPort("q_link", self._n)
@@ -58,6 +63,7 @@ class JointStatusSender(LeafSystem):
         self._session_input = self.DeclareVectorInputPort("last_command_session", 1)
         self._commanded_input = self.DeclareVectorInputPort("q_commanded", self._n)
         self._guard_mode_input = self.DeclareVectorInputPort("guard_mode", 1)
+        self._stream_distance_input = self.DeclareVectorInputPort("stream_distance", 1)
         self._accepted_input = self.DeclareVectorInputPort("accepted_count", 1)
         self._counts_input = self.DeclareVectorInputPort("rejection_counts", len(REJECTION_CLASSES))
         self._message_output = self.DeclareAbstractOutputPort(
@@ -90,6 +96,9 @@ class JointStatusSender(LeafSystem):
 
     def get_guard_mode_input_port(self):
         return self._guard_mode_input
+
+    def get_stream_distance_input_port(self):
+        return self._stream_distance_input
 
     def get_accepted_count_input_port(self):
         return self._accepted_input
@@ -125,5 +134,8 @@ class JointStatusSender(LeafSystem):
         counts = (self._counts_input.Eval(context) if self._counts_input.HasValue(context)
                   else [0.0] * len(REJECTION_CLASSES))
         (msg.rejected_invalid_count, msg.rejected_auth_count, msg.dropped_duplicate_count,
-         msg.dropped_stale_count, msg.undecodable_count) = (int(round(c)) for c in counts)
+         msg.dropped_stale_count, msg.undecodable_count, msg.rejected_session_count) = (
+            int(round(c)) for c in counts)
+        msg.onboard_epoch = self._epoch
+        msg.stream_distance_rad = float(self._optional(self._stream_distance_input, context, 0.0))
         output.set_value(msg)

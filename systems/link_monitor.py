@@ -15,6 +15,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
 from telesmooth.lcm_types import lcmt_onboard_joint_status
+from telesmooth.link.session import NONCE_BITS, next_session
 from telesmooth.systems.joint_command_receiver import REJECTION_CLASSES
 from telesmooth.systems.timing import check_period
 
@@ -26,6 +27,13 @@ LINK_STATUSES = ("no-telemetry", "ok", "degraded", "lost")
 
 ONBOARD_COUNTS = ("accepted",) + REJECTION_CLASSES
 """The ``onboard_counts`` output, in this order (the telemetry's counters)."""
+
+# Layout of the monitor's state vector.
+(_STATUS, _ARRIVAL, _COUNT, _UNACKNOWLEDGED, _GUARD_MODE, _FLAGGED) = range(6)
+_COUNTS = 6
+_EPOCH = _COUNTS + len(ONBOARD_COUNTS)
+_SESSION, _DISTANCE, _ROBOT_SESSION = _EPOCH + 1, _EPOCH + 2, _EPOCH + 3
+_SIZE = _EPOCH + 4
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,6 +94,10 @@ class LinkMonitor(LeafSystem):
         - unacknowledged
         - onboard_guard_mode
         - onboard_counts
+        - onboard_epoch
+        - session_id
+        - stream_distance
+        - robot_session
 
     - ``telemetry``: the newest ``lcmt_onboard_joint_status`` (an ``LcmSafeSubscriber``'s
       ``lcm_message``); ``telemetry_count``: its ``message_count`` (a change = a new message).
@@ -97,21 +109,37 @@ class LinkMonitor(LeafSystem):
       from another session), (1,).
     - ``onboard_guard_mode``: the robot's link guard mode (0 track, 1 stopping, 2 held,
       3 resuming; −1 before telemetry), (1,).
-    - ``onboard_counts``: the robot's packet counts (:data:`ONBOARD_COUNTS`), (6,).
+    - ``onboard_counts``: the robot's packet counts (:data:`ONBOARD_COUNTS`), (7,).
+    - ``onboard_epoch``: the epoch the robot announces (0 before telemetry), and
+      ``session_id``: the session this ground run's commands carry (:mod:`telesmooth.link.session`),
+      (1,) each: connect both to the ``JointCommandSender``. With a ``session_nonce`` the
+      session follows the telemetry: whenever a new epoch appears (the first telemetry, a
+      restarted robot) it becomes the counter after the robot's last accepted session, with
+      this run's nonce. Without one both stay at the constructor's values.
+    - ``stream_distance``: how far the robot's command is from the stream it accepted, rad
+      (the telemetry's; 0 before), (1,).
+    - ``robot_session``: the session of the robot's last accepted command (0 before), (1,).
     """
 
-    def __init__(self, config: LinkMonitorConfig = LinkMonitorConfig(), *, session_id: int = 0):
+    def __init__(self, config: LinkMonitorConfig = LinkMonitorConfig(), *, session_id: int = 0,
+                 session_nonce: int | None = None, onboard_epoch: int = 0):
         super().__init__()
         self._config = config
         self._session_id = int(session_id)
+        if session_nonce is not None and not 0 <= session_nonce < 2**NONCE_BITS:
+            raise ValueError(f"session_nonce = {session_nonce!r} must be in "
+                             f"[0, 2^{NONCE_BITS})")
+        self._nonce = session_nonce
         self._telemetry_input = self.DeclareAbstractInputPort(
             "telemetry", AbstractValue.Make(lcmt_onboard_joint_status()))
         self._count_input = self.DeclareVectorInputPort("telemetry_count", 1)
         self._sequence_input = self.DeclareVectorInputPort("sequence_number", 1)
         # [status, arrival time of the newest telemetry (−1: none), its count,
-        #  unacknowledged, guard mode, rejections at the previous telemetry, 6 counts]
-        initial = np.zeros(12)
-        initial[1], initial[4] = -1.0, -1.0
+        #  unacknowledged, guard mode, rejections at the previous telemetry, 7 counts, epoch,
+        #  session, the robot's stream distance, the robot's session]
+        initial = np.zeros(_SIZE)
+        initial[_ARRIVAL], initial[_GUARD_MODE] = -1.0, -1.0
+        initial[_EPOCH], initial[_SESSION] = float(onboard_epoch), float(session_id)
         self._state = self.DeclareDiscreteState(initial)
         self.DeclarePeriodicDiscreteUpdateEvent(config.poll_period_s, 0.0, self._update)
         self.DeclareForcedDiscreteUpdateEvent(self._update)
@@ -119,16 +147,24 @@ class LinkMonitor(LeafSystem):
         def scalar(index):
             return lambda c, o: o.SetAtIndex(0, self._values(c)[index])
 
-        self.DeclareVectorOutputPort("link_status", 1, scalar(0), {self.xd_ticket()})
+        self.DeclareVectorOutputPort("link_status", 1, scalar(_STATUS), {self.xd_ticket()})
         self.DeclareVectorOutputPort(
             "telemetry_age", 1,
-            lambda c, o: o.SetAtIndex(0, -1.0 if self._values(c)[1] < 0
-                                      else c.get_time() - self._values(c)[1]),
+            lambda c, o: o.SetAtIndex(0, -1.0 if self._values(c)[_ARRIVAL] < 0
+                                      else c.get_time() - self._values(c)[_ARRIVAL]),
             {self.xd_ticket(), self.time_ticket()})
-        self.DeclareVectorOutputPort("unacknowledged", 1, scalar(3), {self.xd_ticket()})
-        self.DeclareVectorOutputPort("onboard_guard_mode", 1, scalar(4), {self.xd_ticket()})
-        self.DeclareVectorOutputPort("onboard_counts", 6,
-                                     lambda c, o: o.SetFromVector(self._values(c)[6:12]),
+        self.DeclareVectorOutputPort("unacknowledged", 1, scalar(_UNACKNOWLEDGED),
+                                     {self.xd_ticket()})
+        self.DeclareVectorOutputPort("onboard_guard_mode", 1, scalar(_GUARD_MODE),
+                                     {self.xd_ticket()})
+        self.DeclareVectorOutputPort(
+            "onboard_counts", len(ONBOARD_COUNTS),
+            lambda c, o: o.SetFromVector(self._values(c)[_COUNTS:_EPOCH]), {self.xd_ticket()})
+        self.DeclareVectorOutputPort("onboard_epoch", 1, scalar(_EPOCH), {self.xd_ticket()})
+        self.DeclareVectorOutputPort("session_id", 1, scalar(_SESSION), {self.xd_ticket()})
+        self.DeclareVectorOutputPort("stream_distance", 1, scalar(_DISTANCE),
+                                     {self.xd_ticket()})
+        self.DeclareVectorOutputPort("robot_session", 1, scalar(_ROBOT_SESSION),
                                      {self.xd_ticket()})
 
     def _values(self, context):
@@ -142,23 +178,31 @@ class LinkMonitor(LeafSystem):
         sent = self._sequence_input.Eval(context)[0] if self._sequence_input.HasValue(
             context) else -1.0
         rejected_recently = False
-        if count != values[2] and count > 0:
+        if count != values[_COUNT] and count > 0:
             msg = self._telemetry_input.Eval(context)
-            values[1], values[2] = now, count
+            values[_ARRIVAL], values[_COUNT] = now, count
             counts = [msg.accepted_count, msg.rejected_invalid_count, msg.rejected_auth_count,
                       msg.dropped_duplicate_count, msg.dropped_stale_count,
-                      msg.undecodable_count]
+                      msg.undecodable_count, msg.rejected_session_count]
             flagged = msg.rejected_invalid_count + msg.rejected_auth_count + \
-                msg.undecodable_count
-            rejected_recently = flagged > values[5] or bool(msg.command_rejected)
-            values[5] = flagged
-            values[6:12] = counts
-            values[4] = msg.guard_mode
-            acked = msg.last_command_seq if msg.last_command_session_id == self._session_id \
-                else -1
-            values[3] = max(0.0, sent - acked)
-        age = None if values[1] < 0 else now - values[1]
-        values[0] = link_status(
-            telemetry_age_s=age, unacknowledged=int(values[3]), guard_mode=int(values[4]),
-            rejected_recently=rejected_recently, config=self._config)
+                msg.undecodable_count + msg.rejected_session_count
+            rejected_recently = flagged > values[_FLAGGED] or bool(msg.command_rejected)
+            values[_FLAGGED] = flagged
+            values[_COUNTS:_EPOCH] = counts
+            values[_GUARD_MODE] = msg.guard_mode
+            values[_DISTANCE] = msg.stream_distance_rad
+            values[_ROBOT_SESSION] = msg.last_command_session_id
+            if self._nonce is not None and msg.onboard_epoch != int(values[_EPOCH]):
+                # A robot we have not addressed yet (the first telemetry, or a restart): the
+                # next session after the one it accepted last.
+                values[_EPOCH] = msg.onboard_epoch
+                values[_SESSION] = next_session(msg.last_command_session_id, self._nonce)
+            acked = msg.last_command_seq if msg.last_command_session_id == int(
+                values[_SESSION]) else -1
+            values[_UNACKNOWLEDGED] = max(0.0, sent - acked)
+        age = None if values[_ARRIVAL] < 0 else now - values[_ARRIVAL]
+        values[_STATUS] = link_status(
+            telemetry_age_s=age, unacknowledged=int(values[_UNACKNOWLEDGED]),
+            guard_mode=int(values[_GUARD_MODE]), rejected_recently=rejected_recently,
+            config=self._config)
         discrete_state.get_mutable_vector(self._state).SetFromVector(values)

@@ -17,6 +17,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from telesmooth.smoothing.kalman import START_PRIORS
+from telesmooth.safety.limiter import limiter_params, limiter_rest_state, limiter_step
+from telesmooth.safety.state_codec import VectorCodec
 from telesmooth.smoothing.model import (
     DEFAULT_LAG,
     DEFAULT_R,
@@ -25,7 +27,6 @@ from telesmooth.smoothing.model import (
     STATE_SIZE,
     JerkModel,
 )
-from telesmooth.smoothing.online_hard import OnlineHardLimiter
 from telesmooth.smoothing.reduced_q import OnlineCks, ReducedQConfig
 from telesmooth.smoothing.state_vector import OnlineCksStateVector
 from telesmooth.smoothing.validation import as_per_joint
@@ -189,19 +190,21 @@ class ReducedQSmoother(LeafSystem):
                 raise ValueError(f"initial_position_rad[{name!r}] = {float(value)!r} must be finite")
         initial = self._online.initial_state(q0, sigma0)
         lag = config.lag
-        # online-hard: the limiter's state lives in the Context; this object is only scratch.
+        # online-hard: the limits (immutable) here, the limiter's state in the Context.
         self._limiter = None
         if config.method == "online-hard":
-            self._limiter = OnlineHardLimiter(
+            self._limiter = limiter_params(
                 dt_s=config.period_s, max_acceleration=config.max_acceleration_rad_per_s2,
-                max_jerk=config.max_jerk_rad_per_s3, q_start=q0, joint_names=joint_names)
+                max_jerk=config.max_jerk_rad_per_s3, joint_names=joint_names)
+            initial_limiter = limiter_rest_state(self._limiter, q0)
+            self._limiter_codec = VectorCodec(initial_limiter)
 
         self._q_sample_input = self.DeclareVectorInputPort("q_sample", n)
         self._reset_input = self.DeclareVectorInputPort("reset", 1)
         self._online_state = self.DeclareDiscreteState(self._packer.pack(initial))
         self._raw_window_state = self.DeclareDiscreteState(np.tile(q0, lag + 1))
-        self._limiter_state = (None if self._limiter is None else
-                               self.DeclareDiscreteState(self._limiter.get_state_vector()))
+        self._limiter_state = (None if self._limiter is None else self.DeclareDiscreteState(
+            self._limiter_codec.pack(initial_limiter)))
         self._tick_cache = self.DeclareCacheEntry(
             "tick", ValueProducer(allocate=lambda: AbstractValue.Make(object()),
                                   calc=lambda c, value: value.set_value(self._compute_tick(c))))
@@ -283,20 +286,18 @@ class ReducedQSmoother(LeafSystem):
             output[:, 0] = new_raw[0]
         new_limiter = None
         if self._limiter is not None:
-            limiter = self._limiter
-            limiter.set_state_vector(
+            limiter = self._limiter_codec.unpack(
                 context.get_discrete_state(self._limiter_state).get_value())
             if reset:
                 # The collision hold (or a non-finite sample): rest at the held pose, as the
                 # smoother does.
-                limiter.reset(z)
-            limiter.step(output[:, 0])
-            output = np.stack([limiter.current_position, limiter.current_velocity,
-                               limiter.current_acceleration,
-                               (limiter.sent_history[-1] - 3 * limiter.sent_history[-2]
-                                + 3 * limiter.sent_history[-3] - limiter.sent_history[-4])
+                limiter = limiter_rest_state(self._limiter, z)
+            limiter, _ = limiter_step(self._limiter, limiter, output[:, 0])
+            sent = limiter.sent
+            output = np.stack([limiter.position, limiter.velocity, limiter.acceleration,
+                               (sent[-1] - 3 * sent[-2] + 3 * sent[-3] - sent[-4])
                                / self._config.period_s**3], axis=1)
-            new_limiter = limiter.get_state_vector()
+            new_limiter = self._limiter_codec.pack(limiter)
         return new_state, output, triggered, new_raw, new_limiter
 
     def _update_smoother(self, context, discrete_state):

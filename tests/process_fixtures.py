@@ -5,6 +5,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -55,3 +56,48 @@ class CliProcess(subprocess.Popen):
         """SIGINT, then the exit code (0 expected: the tools stop cleanly on it)."""
         self.send_signal(signal.SIGINT)
         return self.wait(timeout=timeout_s)
+
+
+PROCESS_TEST_TIMEOUT_S = 600
+"""The longest a process test waits for one process (a loaded machine starts them slowly)."""
+
+
+class CpuHog:
+    """A CPU-bound process beside the processes under test (``python3 -c "while True: pass"``),
+    as a context manager: started on entry, killed on exit."""
+
+    def __enter__(self):
+        self.process = subprocess.Popen(["python3", "-c", "while True: pass"])
+        return self
+
+    def __exit__(self, *exc):
+        self.process.kill()
+        self.process.wait(timeout=30)
+        return False
+
+
+def guard_gaps(received_t, timeout_s):
+    """The accepted packets' arrival times (onboard simulation time, s) and the indices after
+    which the next packet came later than ``timeout_s`` (the guard then rightly stops)."""
+    t = np.asarray(received_t, dtype=float)
+    return np.flatnonzero(np.diff(t) > timeout_s)
+
+
+class BusPump:
+    """Pumps ``lcm.LCM`` buses (handle their subscriptions) in a daemon thread until
+    :meth:`close`."""
+
+    def __init__(self, *buses):
+        self.buses = buses
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self):
+        while not self._stop.is_set():
+            for bus in self.buses:
+                bus.handle_timeout(5)
+
+    def close(self):
+        self._stop.set()
+        self._thread.join(timeout=5)

@@ -452,7 +452,11 @@ def test_bench_writes_its_figures_and_their_ratios(tmp_path, capsys):
     for r in data["online_step"]:
         assert r["online_cks_over_ruckig"] == pytest.approx(
             r["online_cks_us_per_tick"] / r["ruckig_us_per_tick"])
+        assert r["online_hard_over_ruckig"] == pytest.approx(
+            r["online_hard_us_per_tick"] / r["ruckig_us_per_tick"])
+        assert r["limiter_us_per_tick"] > 0.0
     assert "Online-CKS / Ruckig" in (tmp_path / "bench_core.md").read_text()
+    assert "limiter alone [µs/tick]" in (tmp_path / "bench_core.md").read_text()
     assert "Online-CKS / Ruckig" in captured.out
 
 

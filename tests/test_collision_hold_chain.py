@@ -36,10 +36,7 @@ from telesmooth.diagrams.teleoperation import (
     uplink_packets,
 )
 from telesmooth.lcm_types import lcmt_teleop_joint_command
-from telesmooth.systems.collision_stop import (
-    SAME_SIDE_TOLERANCE_RAD,
-    STOP_OUTCOMES,
-)
+from telesmooth.safety.stop import SAME_SIDE_TOLERANCE_RAD, STOP_OUTCOMES
 from telesmooth.systems.laser_tracker import tracker_record
 
 PROBE = """{workspace: {obstacles: [

@@ -15,14 +15,15 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import LogVectorOutput
 
-from telesmooth.smoothing.online_hard import stop_position
-from telesmooth.systems.collision_stop import (
+from telesmooth.safety.limiter import stop_position
+from telesmooth.safety.stop import (
     SAME_SIDE_TOLERANCE_RAD,
     STOP_OUTCOMES,
-    CollisionStopPlanner,
-    MakeCollisionStopPlanner,
-    PreSimulatorPoseCheck,
+    STOPPABLE_ROUNDING_TOLERANCE,
+    nudge_into_stoppable_set,
+    stop_params,
 )
+from telesmooth.systems.collision_stop import MakeCollisionStopPlanner, PreSimulatorPoseCheck
 from telesmooth.systems.delay_fifo import DelayFifo, DelayFifoConfig
 from telesmooth.systems.reduced_q_smoother import ReducedQSmoother, ReducedQSmootherConfig
 from telesmooth.systems.uplink import Uplink
@@ -41,7 +42,7 @@ def always_safe(q):
 
 def make_planner(pose_is_safe=always_safe, *, max_velocity=None, a_max=A_MAX, j_max=J_MAX,
                  joints=JOINTS):
-    return CollisionStopPlanner(dt_s=DT, max_acceleration=a_max, max_jerk=j_max,
+    return stop_params(dt_s=DT, max_acceleration=a_max, max_jerk=j_max,
                                 max_velocity=max_velocity, pose_is_safe=pose_is_safe,
                                 joint_names=joints)
 
@@ -78,9 +79,9 @@ def test_random_stoppable_histories_brake_to_rest_within_the_limits(v_max):
         v = rng.uniform(-0.5, 0.5, size=2) * (1.0 if v_max is None else 0.6)
         a = rng.uniform(-1.0, 1.0, size=2) * A_MAX * 0.999
         plan = dut.plan(history_from(q_hold, v, a), max_ticks=400)
-        outcomes.append(plan.outcome)
+        outcomes.append(plan.outcome.label)
         if not plan.is_stop:
-            assert plan.outcome in ("hold-not-stoppable", "hold-reverses")
+            assert plan.outcome.label in ("hold-not-stoppable", "hold-reverses")
             np.testing.assert_array_equal(plan.commands, [plan.hold_position])
             continue
         sent = np.vstack([history_from(q_hold, v, a), plan.commands, plan.commands[-1:],
@@ -116,7 +117,7 @@ def test_every_braking_pose_is_checked_and_a_rejected_pose_falls_back_to_hold():
     # A wall half way along joint 0's braking distance.
     wall = 0.3 + 0.5 * accepted.braking_distance[0]
     rejected = make_planner(lambda q: q[0] < wall).plan(history, max_ticks=100)
-    assert rejected.outcome == "hold-pose-rejected"
+    assert rejected.outcome.label == "hold-pose-rejected"
     assert rejected.rejected_command == int(np.argmax(accepted.commands[:, 0] >= wall))
     np.testing.assert_array_equal(rejected.commands, [history[-1]])
     np.testing.assert_array_equal(rejected.braking_distance, [0.0, 0.0])
@@ -126,11 +127,11 @@ def test_a_state_outside_the_stoppable_set_falls_back_to_hold():
     dut = make_planner(max_velocity=0.3)
     # |a| above a_max (the Online-CKS history may break the limits).
     assert dut.plan(history_from([0.0, 0.0], [0.1, 0.0], [1.01 * A_MAX, 0.0]),
-                    max_ticks=100).outcome == "hold-not-stoppable"
+                    max_ticks=100).outcome.label == "hold-not-stoppable"
     # Inside the box but cornered: at the velocity limit and still accelerating.
     plan = dut.plan(history_from([0.0, 0.0], [0.3, 0.0], [0.5 * A_MAX, 0.0]), max_ticks=100)
-    assert plan.outcome == "hold-not-stoppable"
-    assert STOP_OUTCOMES.index(plan.outcome) == 3
+    assert plan.outcome.label == "hold-not-stoppable"
+    assert int(plan.outcome) == 3
 
 
 def test_a_stop_that_must_first_reverse_falls_back_to_hold():
@@ -138,7 +139,7 @@ def test_a_stop_that_must_first_reverse_falls_back_to_hold():
     # then every admissible stop passes back behind q_hold (to about −0.82 mrad).
     plan = make_planner().plan(history_from([0.0, 0.0], [0.02, 0.0], [-0.1692, 0.0]),
                                max_ticks=100)
-    assert plan.outcome == "hold-reverses"
+    assert plan.outcome.label == "hold-reverses"
     np.testing.assert_array_equal(plan.commands, [[0.0, 0.0]])
     # Moving back from the first command on is not a reversal: it stays on one side.
     backward = make_planner().plan(history_from([0.0, 0.0], [0.01, 0.0], [-0.19, 0.0]),
@@ -148,7 +149,7 @@ def test_a_stop_that_must_first_reverse_falls_back_to_hold():
 
 def test_too_long_a_stop_falls_back_to_hold():
     history = history_from([0.0, 0.0], [0.4, 0.0], [0.0, 0.0])
-    assert make_planner().plan(history, max_ticks=4).outcome == "hold-too-long"
+    assert make_planner().plan(history, max_ticks=4).outcome.label == "hold-too-long"
     assert make_planner().plan(history, max_ticks=100).is_stop
 
 
@@ -341,6 +342,43 @@ def test_stop_only_ports_exist_only_with_the_stop_policy():
     assert stop.get_stop_status_output_port().size() == 1
 
 
+def test_the_fifo_plans_between_ticks_and_a_tick_without_a_plan_holds():
+    """The stop is planned at mid-period from the history the next tick will have (never in
+    an output calculation); a collision tick whose history was not planned (a tick forced
+    without the mid-period update) falls back to the hold instead of planning on the spot."""
+    moving = history_from([0.3, -0.2], [0.2, -0.1], [0.0, 0.0])
+    config = DelayFifoConfig(on_collision="stop")
+    fifo = DelayFifo(config, num_joints=2, initial_position_rad=[0.0, 0.0],
+                     collision_stop=make_planner())
+    # No plan for this history (a fresh context: the plan is the rest at the start pose).
+    context = fifo.CreateDefaultContext()
+    fifo.get_q_target_input_port().FixValue(context, [0.0, 0.0])
+    fifo.get_q_sent_input_port().FixValue(context, moving[2])
+    fifo.get_collision_detected_input_port().FixValue(context, [1.0])
+    np.testing.assert_array_equal(fifo.get_q_delayed_output_port().Eval(context), moving[2])
+    assert STOP_OUTCOMES[int(fifo.get_stop_status_output_port().Eval(context)[0])] == "hold"
+    # In a simulation the sent commands m0, m1, m2 arrive at the ticks; the mid-period update
+    # before the collision tick plans from [m0, m1, m2], and the tick plays that plan.
+    simulator = Simulator(fifo)
+    context = simulator.get_mutable_context()
+    fifo.get_q_target_input_port().FixValue(context, [0.0, 0.0])
+    fifo.get_collision_detected_input_port().FixValue(context, [0.0])
+    # Tick k sends p_{k−1} = q_sent: m0 at tick 1, m1 at tick 2; m2 is sent at t_2 and the
+    # mid-period update after it plans for tick 3 from [m0, m1, m2].
+    for k, until in enumerate((1.0 * DT + 1e-3, 2.0 * DT + 1e-3, 2.5 * DT + 1e-3)):
+        fifo.get_q_sent_input_port().FixValue(context, moving[k])
+        simulator.AdvanceTo(until)
+    fifo.get_collision_detected_input_port().FixValue(context, [1.0])
+    context.SetTime(3 * DT)                                # tick 3, before its update
+    plan = make_planner().plan(moving, max_ticks=config.max_stop_ticks)
+    assert plan.is_stop and plan.ticks_to_rest > 2
+    np.testing.assert_array_equal(fifo.get_q_delayed_output_port().Eval(context),
+                                  plan.commands[0])
+    assert STOP_OUTCOMES[int(fifo.get_stop_status_output_port().Eval(context)[0])] == "stop"
+    np.testing.assert_array_equal(fifo.get_braking_distance_output_port().Eval(context),
+                                  plan.braking_distance)
+
+
 def _histories_at_the_limits(limiter, target, ticks=120):
     """The last three commands of ``limiter`` (from rest at 0) chasing ``target`` and its
     negative in turn, 20 ticks each: at its limits, FD states on the boundary of S."""
@@ -353,12 +391,8 @@ def _histories_at_the_limits(limiter, target, ticks=120):
 
 def test_rounding_tolerance_plans_from_the_nudged_history_and_is_validated():
     from telesmooth.smoothing.online_hard import OnlineHardLimiter
-    from telesmooth.systems.collision_stop import (
-        STOPPABLE_ROUNDING_TOLERANCE,
-        nudge_into_stoppable_set,
-    )
     exact = make_planner()
-    tolerant = CollisionStopPlanner(dt_s=DT, max_acceleration=A_MAX, max_jerk=J_MAX,
+    tolerant = stop_params(dt_s=DT, max_acceleration=A_MAX, max_jerk=J_MAX,
                                     pose_is_safe=always_safe, joint_names=JOINTS,
                                     rounding_tolerance=STOPPABLE_ROUNDING_TOLERANCE)
     limiter = OnlineHardLimiter(dt_s=DT, max_acceleration=A_MAX, max_jerk=J_MAX,
@@ -370,12 +404,12 @@ def test_rounding_tolerance_plans_from_the_nudged_history_and_is_validated():
         oracle = exact.plan(nudge_into_stoppable_set(history, sets, DT), max_ticks=400)
         assert plan.outcome == oracle.outcome
         np.testing.assert_array_equal(plan.commands, oracle.commands)
-        rescued += exact.plan(history, max_ticks=400).outcome == "hold-not-stoppable" and \
+        rescued += exact.plan(history, max_ticks=400).outcome.label == "hold-not-stoppable" and \
             plan.is_stop
     assert rescued > 0
     for bad in (-1e-12, 1e-3, float("nan")):
         with pytest.raises(ValueError, match="rounding_tolerance"):
-            CollisionStopPlanner(dt_s=DT, max_acceleration=A_MAX, max_jerk=J_MAX,
+            stop_params(dt_s=DT, max_acceleration=A_MAX, max_jerk=J_MAX,
                                  pose_is_safe=always_safe, joint_names=JOINTS,
                                  rounding_tolerance=bad)
 
@@ -387,7 +421,6 @@ def test_the_ground_planner_treats_rounding_like_the_onboard_guard():
     # where only rounding is at fault.
     from telesmooth.arms.planar import AIR_BEARING_ARM
     from telesmooth.smoothing.online_hard import OnlineHardLimiter
-    from telesmooth.systems.collision_stop import nudge_into_stoppable_set
 
     class FarAway:
         def query(self, q):
@@ -398,7 +431,7 @@ def test_the_ground_planner_treats_rounding_like_the_onboard_guard():
     ground = MakeCollisionStopPlanner(period_s=DT, smoother_config=config, arm=AIR_BEARING_ARM,
                                       collision_model=FarAway(), safety_margin_m=0.02)
     names = tuple(AIR_BEARING_ARM.joint_names)
-    exact = CollisionStopPlanner(dt_s=DT, max_acceleration=A_MAX, max_jerk=J_MAX,
+    exact = stop_params(dt_s=DT, max_acceleration=A_MAX, max_jerk=J_MAX,
                                  pose_is_safe=always_safe, joint_names=names)
     limiter = OnlineHardLimiter(dt_s=DT, max_acceleration=A_MAX, max_jerk=J_MAX,
                                 q_start=[0.0, 0.0, 0.0])
@@ -409,6 +442,6 @@ def test_the_ground_planner_treats_rounding_like_the_onboard_guard():
                             max_ticks=400)
         assert plan.outcome == oracle.outcome
         np.testing.assert_array_equal(plan.commands, oracle.commands)
-        rescued += (exact.plan(history, max_ticks=400).outcome == "hold-not-stoppable"
+        rescued += (exact.plan(history, max_ticks=400).outcome.label == "hold-not-stoppable"
                     and plan.is_stop)
     assert rescued > 0

@@ -41,6 +41,7 @@ def _command(seq=4, session_id=1_700_000_000_123_456):
     msg.joint_velocity_smoothed = [0.01, 0.0, -0.02]
     msg.mode = lcmt_teleop_joint_command.MODE_TRACK
     msg.session_id = session_id
+    msg.onboard_epoch = 0x5DEECE66D   # covered by the tag like every other field
     return msg
 
 
@@ -54,7 +55,7 @@ def _hand_built_canonical(msg):
     n = len(msg.joint_name)
     out += struct.pack(f">{n}d", *msg.joint_position_smoothed)
     out += struct.pack(f">{n}d", *msg.joint_velocity_smoothed)
-    out += struct.pack(">bqh", msg.mode, msg.session_id, 0)
+    out += struct.pack(">bqqh", msg.mode, msg.session_id, msg.onboard_epoch, 0)
     return out
 
 

@@ -61,8 +61,8 @@ def test_monitor_follows_the_telemetry():
     out = poll(1.0, _telemetry(7, 10, accepted=11), 1, sent=12)
     assert LINK_STATUSES[int(out["link_status"][0])] == "ok"
     assert out["unacknowledged"][0] == 2
-    np.testing.assert_array_equal(out["onboard_counts"], [11, 0, 0, 0, 0, 0])
-    assert len(ONBOARD_COUNTS) == 6
+    np.testing.assert_array_equal(out["onboard_counts"], [11, 0, 0, 0, 0, 0, 0])
+    assert len(ONBOARD_COUNTS) == 7 and ONBOARD_COUNTS[-1] == "session"
     # The robot's last command is from another (older) session: everything is unacknowledged.
     out = poll(1.1, _telemetry(6, 40), 2, sent=12)
     assert out["unacknowledged"][0] == 13
@@ -79,6 +79,56 @@ def test_monitor_follows_the_telemetry():
     out = poll(2.5, sent=16)
     assert LINK_STATUSES[int(out["link_status"][0])] == "lost"
     assert out["telemetry_age"][0] == pytest.approx(1.1)
+
+
+def test_with_a_nonce_the_session_follows_the_robots_epoch_and_last_session():
+    from telesmooth.link.session import next_session, session_counter, session_id
+
+    nonce = 0x1234abcd
+    dut = LinkMonitor(CONFIG, session_nonce=nonce)
+    context = dut.CreateDefaultContext()
+
+    def poll(t, msg, count, sent=-1):
+        context.SetTime(t)
+        dut.GetInputPort("telemetry").FixValue(context, msg)
+        dut.GetInputPort("telemetry_count").FixValue(context, [count])
+        dut.GetInputPort("sequence_number").FixValue(context, [sent])
+        dut.CalcForcedDiscreteVariableUpdate(context, context.get_mutable_discrete_state())
+        return {name: dut.GetOutputPort(name).Eval(context)[0] for name in
+                ("onboard_epoch", "session_id", "stream_distance", "robot_session",
+                 "unacknowledged")}
+
+    assert poll(0.0, lcmt_onboard_joint_status(), 0)["onboard_epoch"] == 0.0
+    # First telemetry: epoch 2^51 + 5, the robot last accepted counter 3 of another run.
+    other = session_id(3, 99)
+    msg = _telemetry(other, 20)
+    msg.onboard_epoch, msg.stream_distance_rad = 2**51 + 5, 0.0123
+    out = poll(0.1, msg, 1, sent=4)
+    mine = next_session(other, nonce)
+    assert (out["onboard_epoch"], out["session_id"]) == (2**51 + 5, mine)
+    assert session_counter(mine) == 4 and mine & 0xFFFFFFFF == nonce
+    assert out["stream_distance"] == 0.0123 and out["robot_session"] == other
+    assert out["unacknowledged"] == 5             # none of ours accepted yet
+    # The robot accepts ours: the session stays (same epoch).
+    accepted = _telemetry(mine, 4)
+    accepted.onboard_epoch = 2**51 + 5
+    out = poll(0.2, accepted, 2, sent=5)
+    assert out["session_id"] == mine and out["unacknowledged"] == 1
+    # The robot restarted: a new epoch, nothing accepted there yet: counter 1.
+    restarted = _telemetry(0, -1)
+    restarted.onboard_epoch = 77
+    out = poll(0.3, restarted, 3, sent=6)
+    assert (out["onboard_epoch"], out["session_id"]) == (77, session_id(1, nonce))
+    # Without a nonce (in-process) nothing follows the telemetry.
+    fixed = LinkMonitor(CONFIG, session_id=9, onboard_epoch=0)
+    fixed_context = fixed.CreateDefaultContext()
+    fixed.GetInputPort("telemetry").FixValue(fixed_context, msg)
+    fixed.GetInputPort("telemetry_count").FixValue(fixed_context, [1])
+    fixed.GetInputPort("sequence_number").FixValue(fixed_context, [0])
+    fixed.CalcForcedDiscreteVariableUpdate(fixed_context,
+                                           fixed_context.get_mutable_discrete_state())
+    assert fixed.GetOutputPort("session_id").Eval(fixed_context)[0] == 9
+    assert fixed.GetOutputPort("onboard_epoch").Eval(fixed_context)[0] == 0
 
 
 def test_config_errors_name_the_field():

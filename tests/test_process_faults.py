@@ -15,28 +15,37 @@ robot's commanded pose.
 
 import json
 import signal
-import threading
 import time
 
 import lcm
 import numpy as np
 import pytest
-from process_fixtures import CliProcess, bus_urls, read_rows
+from process_fixtures import (
+    PROCESS_TEST_TIMEOUT_S,
+    BusPump,
+    CliProcess,
+    bus_urls,
+    read_rows,
+)
 
 from telesmooth.diagrams.channels import TELEOP_JOINT_COMMAND
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.lcm_types import lcmt_teleop_joint_command
 from telesmooth.link.auth import generate_key_file, sign
+from telesmooth.lcm_types import lcmt_onboard_joint_status
 from telesmooth.systems.link_guard import MODE_HELD, MODE_STOPPING, fd_limits_ratio
+
+pytestmark = pytest.mark.process
 
 SCENARIO_TEXT = ("{haptic: {source: synthetic, synthetic: {duration_s: 12.0, hold_start_s: 0.5,"
                  " hold_end_s: 0.5}}, settle_s: 0.0, smoother: {method: online-hard}}")
 LINK = "{loss_probability: 0.1, duplicate_probability: 0.3, jitter_s: 0.05, seed: 7}"
 
 
-def _command(seq, names, q, session=1):
+def _command(seq, names, q, session=1, epoch=0):
     msg = lcmt_teleop_joint_command()
     msg.seq, msg.session_id, msg.num_joints = seq, session, len(names)
+    msg.onboard_epoch = epoch
     msg.joint_name = list(names)
     msg.joint_position_smoothed = list(q)
     msg.joint_velocity_smoothed = [0.0] * len(q)
@@ -70,30 +79,28 @@ def fault_run(tmp_path_factory):
 
     captured = []      # authentic packets seen on B (to replay), and every packet on A
     sent_on_a = []
+    status = []        # the robot's telemetry on B (a faulty ground reads it too)
     bus_a, bus_b = lcm.LCM(url_a), lcm.LCM(url_b)
     bus_a.subscribe(TELEOP_JOINT_COMMAND, lambda c, d: sent_on_a.append(bytes(d)))
     bus_b.subscribe(TELEOP_JOINT_COMMAND, lambda c, d: captured.append(bytes(d)))
-    stop = threading.Event()
-
-    def pump():
-        while not stop.is_set():
-            bus_a.handle_timeout(5)
-            bus_b.handle_timeout(5)
-
-    pumping = threading.Thread(target=pump, daemon=True)
-    pumping.start()
+    bus_b.subscribe("ONBOARD_JOINT_STATUS",
+                    lambda c, d: status.append(lcmt_onboard_joint_status.decode(d)))
+    pumping = BusPump(bus_a, bus_b)
     attacks = {"unsigned": 0, "forged": 0, "replayed": 0, "garbage": 0, "nan": 0, "count": 0}
     try:
-        onboard = start(["onboard", "--lcm-url", url_b, "--duration", "30",
+        # The onboard process runs until this test stops it (SIGINT; it writes its logs): a
+        # fixed duration would be a wall-clock margin that a slow start on a loaded machine
+        # eats before the second ground has sent anything.
+        onboard = start(["onboard", "--lcm-url", url_b, "--duration", "900",
                                       "--out", str(out)] + common, "onboard")
-        onboard.wait_for("onboard: listening", 120)
+        onboard.wait_for("onboard: listening", PROCESS_TEST_TIMEOUT_S)
         relay = start(["link-relay", "--in-url", url_a, "--out-url", url_b,
                                     "--link", LINK, "--report", str(out / "relay.json"),
-                                    "--duration", "40"], "relay")
-        relay.wait_for("ready", 60)
+                                    "--duration", "900"], "relay")
+        relay.wait_for("ready", PROCESS_TEST_TIMEOUT_S)
         ground = start(["ground", "--lcm-url", url_a, "--duration", "12",
                                      "--resume-wait", "0"] + common, "ground1")
-        ground.wait_for("ground: publishing", 120)
+        ground.wait_for("ground: publishing", PROCESS_TEST_TIMEOUT_S)
         time.sleep(3.0)
         # The attacks, on the onboard bus, while the first ground runs.
         # 0.1 s apart: Drake's DrakeLcm keeps one queued message per subscription, so packets
@@ -117,12 +124,16 @@ def fault_run(tmp_path_factory):
             bus_b.publish(TELEOP_JOINT_COMMAND, data)
             attacks["replayed"] += 1
             time.sleep(0.1)
+        # A faulty ground (it holds the key) addresses the robot right — its epoch and its
+        # current session, read from the telemetry — with invalid positions.
+        robot = status[-1]
+        current = dict(session=robot.last_command_session_id, epoch=robot.onboard_epoch)
         bus_b.publish(TELEOP_JOINT_COMMAND, sign(_command(
-            30_000, names, [float("nan")] * len(names), session=2**62), key).encode())
+            30_000, names, [float("nan")] * len(names), **current), key).encode())
         attacks["nan"] += 1
         time.sleep(0.1)
         bus_b.publish(TELEOP_JOINT_COMMAND, sign(_command(
-            30_001, names[:-1], [0.0] * (len(names) - 1), session=2**62), key).encode())
+            30_001, names[:-1], [0.0] * (len(names) - 1), **current), key).encode())
         attacks["count"] += 1
         time.sleep(1.0)
         ground.send_signal(signal.SIGKILL)          # the ground process dies mid-run
@@ -130,14 +141,16 @@ def fault_run(tmp_path_factory):
         time.sleep(4.0)                             # onboard: ramp down, hold
         ground2 = start(["ground", "--lcm-url", url_a, "--duration", "5",
                                       "--resume-wait", "5"] + common, "ground2")
-        ground2.wait_for("ground: publishing", 120)
-        assert ground2.wait(timeout=120) == 0, ground2.log_path.read_text()
+        ground2.wait_for("ground: publishing", PROCESS_TEST_TIMEOUT_S)
+        assert ground2.wait(timeout=PROCESS_TEST_TIMEOUT_S) == 0, ground2.log_path.read_text()
         restart_log = ground2.log_path.read_text()
-        assert onboard.wait(timeout=120) == 0, onboard.log_path.read_text()
+        time.sleep(3.0)                             # the last packets reach the robot
+        assert onboard.stop(timeout_s=PROCESS_TEST_TIMEOUT_S) == 0, \
+            onboard.log_path.read_text()
         relay.send_signal(signal.SIGINT)
         relay.wait(timeout=30)
     finally:
-        stop.set()
+        pumping.close()
         for process in processes:
             if process.poll() is None:
                 process.kill()
@@ -176,7 +189,7 @@ def test_the_robot_ramped_down_after_the_kill_and_the_restart_continued_from_it(
     scenario = fault_run["scenario"]
     guard = read_rows(fault_run["out"] / "onboard_guard.csv")   # command, t, mode, outcome, q…
     accepted = read_rows(fault_run["out"] / "onboard_commands.csv")
-    q = guard[:, 4:]
+    q = guard[:, 5:]
     assert np.all(np.isfinite(q))
     arm = scenario.arm_description
     assert np.all(q >= arm.joint_lower_rad) and np.all(q <= arm.joint_upper_rad)
@@ -190,7 +203,7 @@ def test_the_robot_ramped_down_after_the_kill_and_the_restart_continued_from_it(
     # kill (the one its telemetry reported when the new ground started; the ramp-down may
     # still be going on then, so later commands of it can follow before the packet lands).
     issued = guard[(guard[:, 1] > accepted[first_of_second - 1, 3]) &
-                   (guard[:, 1] <= t_restart)][:, 4:]
+                   (guard[:, 1] <= t_restart)][:, 5:]
     assert any(np.array_equal(accepted[first_of_second, 4:], row) for row in issued)
     assert "resuming from the robot's commanded pose" in fault_run["restart_log"]
     # No jump: from a second before the kill through the ramp-down, the restart and the
@@ -198,7 +211,7 @@ def test_the_robot_ramped_down_after_the_kill_and_the_restart_continued_from_it(
     window = guard[(guard[:, 1] > accepted[first_of_second - 1, 3] - 1.0) &
                    (guard[:, 1] < t_restart + 4.0)]
     assert len(window) >= 8, window
-    ratio = fd_limits_ratio(window[:, 4:], scenario.uplink.period_s,
+    ratio = fd_limits_ratio(window[:, 5:], scenario.uplink.period_s,
                             scenario.smoother.max_acceleration_rad_per_s2,
                             scenario.smoother.max_jerk_rad_per_s3)
     assert ratio.acceleration <= 1 + 1e-6 and ratio.jerk <= 1 + 1e-6, ratio

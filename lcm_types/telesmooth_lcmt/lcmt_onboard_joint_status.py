@@ -15,11 +15,11 @@ class lcmt_onboard_joint_status(object):
     Channel: ONBOARD_JOINT_STATUS, nominal 100 Hz.
     """
 
-    __slots__ = ["utime", "seq", "num_joints", "joint_position_link", "joint_position_motor", "tool_position_measured", "last_command_seq", "command_rejected", "command_timeout", "last_command_session_id", "joint_position_commanded", "guard_mode", "accepted_count", "rejected_invalid_count", "rejected_auth_count", "dropped_duplicate_count", "dropped_stale_count", "undecodable_count"]
+    __slots__ = ["utime", "seq", "num_joints", "joint_position_link", "joint_position_motor", "tool_position_measured", "last_command_seq", "command_rejected", "command_timeout", "last_command_session_id", "joint_position_commanded", "guard_mode", "accepted_count", "rejected_invalid_count", "rejected_auth_count", "dropped_duplicate_count", "dropped_stale_count", "undecodable_count", "onboard_epoch", "rejected_session_count", "stream_distance_rad"]
 
-    __typenames__ = ["int64_t", "int32_t", "int32_t", "double", "double", "double", "int32_t", "boolean", "boolean", "int64_t", "double", "int8_t", "int32_t", "int32_t", "int32_t", "int32_t", "int32_t", "int32_t"]
+    __typenames__ = ["int64_t", "int32_t", "int32_t", "double", "double", "double", "int32_t", "boolean", "boolean", "int64_t", "double", "int8_t", "int32_t", "int32_t", "int32_t", "int32_t", "int32_t", "int32_t", "int64_t", "int32_t", "double"]
 
-    __dimensions__ = [None, None, None, ["num_joints"], ["num_joints"], [3], None, None, None, None, ["num_joints"], None, None, None, None, None, None, None]
+    __dimensions__ = [None, None, None, ["num_joints"], ["num_joints"], [3], None, None, None, None, ["num_joints"], None, None, None, None, None, None, None, None, None, None]
 
     def __init__(self):
         self.utime = 0
@@ -125,6 +125,26 @@ class lcmt_onboard_joint_status(object):
         LCM Type: int32_t
         """
 
+        self.onboard_epoch = 0
+        """
+        not an lcmt_teleop_joint_command at all
+        This onboard run's random epoch (telesmooth.link.session): commands must carry it.
+        LCM Type: int64_t
+        """
+
+        self.rejected_session_count = 0
+        """
+        Authentic packets refused for their session: another onboard run's epoch (a replay
+        across a restart) or a session counter that skips ahead.
+        LCM Type: int32_t
+        """
+
+        self.stream_distance_rad = 0.0
+        """
+        How far the robot's command is from the newest accepted packet, rad (max over joints).
+        LCM Type: double
+        """
+
 
     def encode(self):
         buf = BytesIO()
@@ -139,7 +159,7 @@ class lcmt_onboard_joint_status(object):
         buf.write(struct.pack('>3d', *self.tool_position_measured[:3]))
         buf.write(struct.pack(">ibbq", self.last_command_seq, self.command_rejected, self.command_timeout, self.last_command_session_id))
         buf.write(struct.pack('>%dd' % self.num_joints, *self.joint_position_commanded[:self.num_joints]))
-        buf.write(struct.pack(">biiiiii", self.guard_mode, self.accepted_count, self.rejected_invalid_count, self.rejected_auth_count, self.dropped_duplicate_count, self.dropped_stale_count, self.undecodable_count))
+        buf.write(struct.pack(">biiiiiiqid", self.guard_mode, self.accepted_count, self.rejected_invalid_count, self.rejected_auth_count, self.dropped_duplicate_count, self.dropped_stale_count, self.undecodable_count, self.onboard_epoch, self.rejected_session_count, self.stream_distance_rad))
 
     @staticmethod
     def decode(data: bytes):
@@ -163,13 +183,13 @@ class lcmt_onboard_joint_status(object):
         self.command_timeout = bool(struct.unpack('b', buf.read(1))[0])
         self.last_command_session_id = struct.unpack(">q", buf.read(8))[0]
         self.joint_position_commanded = struct.unpack('>%dd' % self.num_joints, buf.read(self.num_joints * 8))
-        self.guard_mode, self.accepted_count, self.rejected_invalid_count, self.rejected_auth_count, self.dropped_duplicate_count, self.dropped_stale_count, self.undecodable_count = struct.unpack(">biiiiii", buf.read(25))
+        self.guard_mode, self.accepted_count, self.rejected_invalid_count, self.rejected_auth_count, self.dropped_duplicate_count, self.dropped_stale_count, self.undecodable_count, self.onboard_epoch, self.rejected_session_count, self.stream_distance_rad = struct.unpack(">biiiiiiqid", buf.read(45))
         return self
 
     @staticmethod
     def _get_hash_recursive(parents):
         if lcmt_onboard_joint_status in parents: return 0
-        tmphash = (0xa0fcea5773bda9da) & 0xffffffffffffffff
+        tmphash = (0xfd7606171c9a813) & 0xffffffffffffffff
         tmphash  = (((tmphash<<1)&0xffffffffffffffff) + (tmphash>>63)) & 0xffffffffffffffff
         return tmphash
     _packed_fingerprint = None

@@ -16,11 +16,11 @@ class lcmt_teleop_joint_command(object):
     process holds its last accepted command (the robot holds).
     """
 
-    __slots__ = ["utime", "seq", "sample_utime", "num_joints", "joint_name", "joint_position_smoothed", "joint_velocity_smoothed", "mode", "session_id", "auth_tag_size", "auth_tag"]
+    __slots__ = ["utime", "seq", "sample_utime", "num_joints", "joint_name", "joint_position_smoothed", "joint_velocity_smoothed", "mode", "session_id", "onboard_epoch", "auth_tag_size", "auth_tag"]
 
-    __typenames__ = ["int64_t", "int32_t", "int64_t", "int32_t", "string", "double", "double", "int8_t", "int64_t", "int16_t", "byte"]
+    __typenames__ = ["int64_t", "int32_t", "int64_t", "int32_t", "string", "double", "double", "int8_t", "int64_t", "int64_t", "int16_t", "byte"]
 
-    __dimensions__ = [None, None, None, None, ["num_joints"], ["num_joints"], ["num_joints"], None, None, None, ["auth_tag_size"]]
+    __dimensions__ = [None, None, None, None, ["num_joints"], ["num_joints"], ["num_joints"], None, None, None, None, ["auth_tag_size"]]
 
     MODE_TRACK = 0
     MODE_HOLD = 1
@@ -74,10 +74,19 @@ class lcmt_teleop_joint_command(object):
 
         self.session_id = 0
         """
-        The ground process run that sent this packet: microseconds since the Unix epoch at
-        its start (0 in in-process simulation). Onboard accepts a packet only if
-        (session_id, seq) is greater than that of the last accepted one, so a restarted ground
-        process is accepted from its first packet and a replay of any earlier packet is not.
+        The ground session that sent this packet (0 in in-process simulation): a counter in
+        the high 32 bits, a random number of the ground run in the low 32 (see
+        telesmooth.link.session). A ground run takes the counter after the one the robot
+        reports in its telemetry; onboard accepts a newer seq of its current session or the
+        next counter (a restarted ground), nothing older and nothing further ahead.
+        LCM Type: int64_t
+        """
+
+        self.onboard_epoch = 0
+        """
+        The onboard run this packet is addressed to: the random epoch the onboard process
+        announces in its telemetry (0 in in-process simulation). Onboard accepts only its own
+        epoch, so no packet of an earlier onboard run can be replayed after a restart.
         LCM Type: int64_t
         """
 
@@ -107,7 +116,7 @@ class lcmt_teleop_joint_command(object):
             buf.write(b"\0")
         buf.write(struct.pack('>%dd' % self.num_joints, *self.joint_position_smoothed[:self.num_joints]))
         buf.write(struct.pack('>%dd' % self.num_joints, *self.joint_velocity_smoothed[:self.num_joints]))
-        buf.write(struct.pack(">bqh", self.mode, self.session_id, self.auth_tag_size))
+        buf.write(struct.pack(">bqqh", self.mode, self.session_id, self.onboard_epoch, self.auth_tag_size))
         buf.write(bytearray(self.auth_tag[:self.auth_tag_size]))
 
     @staticmethod
@@ -130,14 +139,14 @@ class lcmt_teleop_joint_command(object):
             self.joint_name.append(buf.read(__joint_name_len)[:-1].decode('utf-8', 'replace'))
         self.joint_position_smoothed = struct.unpack('>%dd' % self.num_joints, buf.read(self.num_joints * 8))
         self.joint_velocity_smoothed = struct.unpack('>%dd' % self.num_joints, buf.read(self.num_joints * 8))
-        self.mode, self.session_id, self.auth_tag_size = struct.unpack(">bqh", buf.read(11))
+        self.mode, self.session_id, self.onboard_epoch, self.auth_tag_size = struct.unpack(">bqqh", buf.read(19))
         self.auth_tag = buf.read(self.auth_tag_size)
         return self
 
     @staticmethod
     def _get_hash_recursive(parents):
         if lcmt_teleop_joint_command in parents: return 0
-        tmphash = (0xd37c0bf027d43215) & 0xffffffffffffffff
+        tmphash = (0x55c78e649e11adfe) & 0xffffffffffffffff
         tmphash  = (((tmphash<<1)&0xffffffffffffffff) + (tmphash>>63)) & 0xffffffffffffffff
         return tmphash
     _packed_fingerprint = None
