@@ -182,7 +182,7 @@ def test_ports_and_plant_structure_air_bearing():
                      "tracker_sample_time": 1, "tracker_measurement": 10,
                      "command_rejected": 1, "state_desired": 6, "plant_state": 12}
     plant = dut.plant
-    assert plant.time_step() == 1e-3
+    assert plant.time_step() == 0.0   # continuous by default
     assert plant.num_positions() == 6 and plant.num_actuators() == 3
     np.testing.assert_array_equal(plant.gravity_field().gravity_vector(), [0, 0, 0])
     for joint in AIR_BEARING_ARM_3DOF.joints:  # the servo gains come from the description
@@ -242,7 +242,7 @@ def test_set_initial_positions_puts_the_arm_at_rest():
 def test_default_config_is_valid_and_builds():
     config = FlexibleArmConfig()
     assert (config.arm, config.time_step_s, config.gravity_m_per_s2) == (
-        "air_bearing_arm", 1e-3, (0.0, 0.0, 0.0))
+        "air_bearing_arm", 0.0, (0.0, 0.0, 0.0))
     assert FlexibleJointArm(config).num_joints == 3
 
 
@@ -436,9 +436,10 @@ def test_unsafe_commands_hold_the_robot_and_raise_the_flag():
     port.FixValue(context, [0.06, 0.0, 0.0])  # a valid command: recovery
     simulator.AdvanceTo(1.6)
     assert flag.Eval(context)[0] == 0.0
-    # 0.1 s into the 0.25 s ramp from 0.05 to 0.06, given one plant step (1 ms) ahead.
+    # The poll 0.1 ms after 1.5 s starts the 0.25 s ramp from 0.05 to 0.06 (no lead: the
+    # plant is continuous).
     assert dut.GetOutputPort("state_desired").Eval(context)[0] == pytest.approx(
-        0.05 + (0.1 + 0.001) / 0.25 * 0.01, abs=1e-12)
+        0.05 + (0.1 - 0.0001) / 0.25 * 0.01, abs=1e-12)
     assert dut.interpolator.get_rejected_command_count(
         dut.interpolator.GetMyContextFromRoot(context)) == 2
 
