@@ -34,6 +34,7 @@ from pydrake.systems.primitives import SymbolicVectorSystem
 from telesmooth.systems.timing import check_period
 
 __all__ = [
+    "DEFAULT_POLL_PERIOD_S",
     "CommandGate",
     "CommandInterpolator",
     "CommandInterpolatorConfig",
@@ -45,6 +46,10 @@ __all__ = [
 
 INTERPOLATIONS = ("linear", "zoh")
 """The interpolation options of :class:`CommandInterpolatorConfig`."""
+
+DEFAULT_POLL_PERIOD_S = 0.01
+"""The poll period when neither the config nor the diagram gives one: the onboard command
+receiver's (and the link guard's) 10 ms."""
 
 _logger = logging.getLogger(__name__)
 
@@ -60,14 +65,16 @@ class CommandInterpolatorConfig:
         ramp_duration_s: Duration of a linear ramp, s (> 0); one uplink period (0.25 s) by
             default, so that a steady 4 Hz stream gives a continuous, piecewise-linear
             desired position. Unused by ``"zoh"``.
-        poll_period_s: How often the held command is read, s (> 0); a new command is
-            detected at the first poll at which it differs from the current target, i.e.
-            at most one poll period late. 10 ms by default: the onboard command receiver's
-            rate (the uplink itself changes every 0.25 s).
-        poll_offset_s: Time of the first poll, s (≥ 0, below ``poll_period_s``); 0.1 ms
-            by default. The upstream commands change at multiples of 10 ms (the uplink's
-            ticks, the receiver's polls), and a poll at the same instant would not see the
-            change (Drake computes simultaneous updates from the state before the
+        poll_period_s: How often the held command is read, s (> 0), or None (default):
+            the period at which the command can change, as the diagram that connects the
+            robot knows it (``command_period_s`` of :class:`CommandInterpolator`): the
+            uplink's 0.25 s when the uplink drives the robot directly, the onboard command
+            receiver's 10 ms (:data:`DEFAULT_POLL_PERIOD_S`) behind a link. A new command is
+            detected at the first poll at which it differs from the current target.
+        poll_offset_s: Time of the first poll, s (≥ 0, below the poll period); 0.1 ms by
+            default. The upstream commands change at multiples of the poll period (the
+            uplink's ticks, the receiver's polls), and a poll at the same instant would not
+            see the change (Drake computes simultaneous updates from the state before the
             instant): it would find it one whole poll period later. Polling 0.1 ms after
             the instant, the robot follows the command from 0.1 ms after it was issued.
             That delay is not free: on Defaults the response error e grows by about 20 %
@@ -77,7 +84,7 @@ class CommandInterpolatorConfig:
 
     interpolation: str = "linear"
     ramp_duration_s: float = 0.25
-    poll_period_s: float = 0.01
+    poll_period_s: float | None = None
     poll_offset_s: float = 1e-4
 
     def __post_init__(self) -> None:
@@ -87,13 +94,30 @@ class CommandInterpolatorConfig:
                 f"one of {INTERPOLATIONS}"
             )
         check_period("CommandInterpolatorConfig.ramp_duration_s", self.ramp_duration_s)
-        period = check_period("CommandInterpolatorConfig.poll_period_s", self.poll_period_s)
+        if self.poll_period_s is not None:
+            check_period("CommandInterpolatorConfig.poll_period_s", self.poll_period_s)
+        self.poll_timing(DEFAULT_POLL_PERIOD_S)
+
+    def poll_timing(self, command_period_s: float | None) -> tuple[float, float]:
+        """(period, offset) of the polls, s: ``poll_period_s``, or ``command_period_s`` if it
+        is None (:data:`DEFAULT_POLL_PERIOD_S` if that is None too), and ``poll_offset_s``.
+
+        Raises:
+            ValueError: naming the field, if the offset is not in [0, period).
+        """
+        if self.poll_period_s is not None:
+            period = check_period("CommandInterpolatorConfig.poll_period_s", self.poll_period_s)
+        elif command_period_s is not None:
+            period = check_period("command_period_s", command_period_s)
+        else:
+            period = DEFAULT_POLL_PERIOD_S
         offset = self.poll_offset_s
         if isinstance(offset, bool) or not isinstance(offset, (int, float)) \
                 or not 0.0 <= offset < period:
             raise ValueError(
                 f"CommandInterpolatorConfig.poll_offset_s = {offset!r} must be a number of "
-                f"seconds in [0, poll_period_s = {self.poll_period_s!r})")
+                f"seconds in [0, poll period = {period!r})")
+        return period, float(offset)
 
 
 def ramp_desired_state(
@@ -255,8 +279,9 @@ class CommandGate(LeafSystem):
     feedthrough), evaluated by Drake without a Python call.
 
     State (discrete): the ramp [t₀, q₀, q₁]; the rejected flag [f]; [rejected-command count,
-    last rejected command (n)] (a held invalid command is counted once). The poll (every
-    ``poll_period_s`` from ``poll_offset_s``) is described in :class:`CommandInterpolator`.
+    last rejected command (n)] (a held invalid command is counted once). The poll (see
+    :meth:`CommandInterpolatorConfig.poll_timing`) is described in
+    :class:`CommandInterpolator`.
     """
 
     def __init__(
@@ -267,6 +292,7 @@ class CommandGate(LeafSystem):
         lower_rad,
         upper_rad,
         initial_position_rad=None,
+        command_period_s: float | None = None,
     ):
         """Validates the joint data and declares ports, state and the poll event.
 
@@ -312,8 +338,9 @@ class CommandGate(LeafSystem):
         # [number of rejected commands, last rejected command (n)]
         self._rejections_state = self.DeclareDiscreteState(
             np.concatenate([[0.0], np.full(n, np.nan)]))
-        self.DeclarePeriodicDiscreteUpdateEvent(
-            config.poll_period_s, config.poll_offset_s, self._update_on_poll)
+        poll_period_s, poll_offset_s = config.poll_timing(command_period_s)
+        self.DeclarePeriodicDiscreteUpdateEvent(poll_period_s, poll_offset_s,
+                                                self._update_on_poll)
 
         self._ramp_output = self.DeclareStateOutputPort("ramp", self._ramp_state)
         self._command_rejected_output = self.DeclareStateOutputPort(
@@ -439,8 +466,8 @@ class CommandInterpolator(Diagram):
     the ramp; a :func:`RampSetPoint` ("ramp_set_point", evaluated by Drake in C++) turns
     the ramp and the time into the set-point, so nothing runs in Python at the plant rate.
 
-    State (the gate's, discrete, updated every ``poll_period_s`` at
-    t_k = ``poll_offset_s`` + k·``poll_period_s``): the ramp [t₀, q₀ (n), q₁ (n)] (start
+    State (the gate's, discrete, updated every poll period P (``poll_period_s``, or
+    ``command_period_s``, or 10 ms) at t_k = ``poll_offset_s`` + k·P): the ramp [t₀, q₀ (n), q₁ (n)] (start
     time, start, target), the rejected flag (1), and [rejected-command count, last rejected
     command (n)] (to count a held invalid command once).
 
@@ -491,6 +518,7 @@ class CommandInterpolator(Diagram):
         initial_position_rad=None,
         lead_s: float = 0.0,
         continuous_diagram: bool = False,
+        command_period_s: float | None = None,
     ):
         """Validates the joint data and builds the gate and the set-point evaluator.
 
@@ -510,6 +538,9 @@ class CommandInterpolator(Diagram):
             continuous_diagram: True if this system will be part of a diagram with
                 continuous state (a continuous plant): see :func:`RampSetPoint`'s
                 ``continuous_state``.
+            command_period_s: The period at which ``q_commanded`` can change, s (the
+                upstream source's: the uplink's, the receiver's); the poll period when
+                ``config.poll_period_s`` is None (10 ms if this is None too).
 
         Raises:
             ValueError: naming the field, joint and value, if any argument is invalid.
@@ -518,7 +549,7 @@ class CommandInterpolator(Diagram):
         builder = DiagramBuilder()
         gate = builder.AddNamedSystem("command_gate", CommandGate(
             config, joint_names=joint_names, lower_rad=lower_rad, upper_rad=upper_rad,
-            initial_position_rad=initial_position_rad))
+            initial_position_rad=initial_position_rad, command_period_s=command_period_s))
         if isinstance(lead_s, bool) or not isinstance(lead_s, (int, float)) \
                 or not math.isfinite(lead_s) or lead_s < 0.0:
             raise ValueError(f"lead_s = {lead_s!r} must be finite and >= 0")

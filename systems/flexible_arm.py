@@ -311,7 +311,8 @@ class FlexibleJointArm(Diagram):
     q_link,i = q_motor,i + δ_i.
 
     The set-point (see :class:`CommandInterpolator`): a new command u starts a ramp at t₀,
-    the command's ``command_time`` if connected, else the poll that sees it (10 ms polls),
+    the command's ``command_time`` if connected, else the poll that sees it (polls every
+    ``command_period_s`` or 10 ms, 0.1 ms after each multiple),
     from the set-point q₀ = q_d(t₀):
 
         "linear": q_d(t) = q₀ + clip((t − t₀)/T, 0, 1)·(u − q₀),
@@ -331,11 +332,17 @@ class FlexibleJointArm(Diagram):
     contact.
     """
 
-    def __init__(self, config: FlexibleArmConfig = FlexibleArmConfig()):
+    def __init__(self, config: FlexibleArmConfig = FlexibleArmConfig(), *,
+                 command_period_s: float | None = None):
         """Builds the diagram.
 
         Args:
             config: The arm, plant step, gravity, initial pose and sub-system settings.
+            command_period_s: The period at which ``q_commanded`` can change, s, if the
+                diagram that drives the robot knows it (the uplink's 0.25 s when it drives
+                the robot directly): the interpolator then polls at it, 0.1 ms after each
+                change, instead of every 10 ms (unless ``config.interpolator.poll_period_s``
+                says otherwise). None: 10 ms, the onboard receiver's rate.
 
         Raises:
             ValueError: if ``config`` is not a FlexibleArmConfig. Invalid field values are
@@ -375,7 +382,8 @@ class FlexibleJointArm(Diagram):
         interpolator = builder.AddNamedSystem("command_interpolator", CommandInterpolator(
             config.interpolator, joint_names=arm.joint_names, lower_rad=arm.joint_lower_rad,
             upper_rad=arm.joint_upper_rad, initial_position_rad=q0,
-            lead_s=config.time_step_s, continuous_diagram=config.time_step_s == 0.0))
+            lead_s=config.time_step_s, continuous_diagram=config.time_step_s == 0.0,
+            command_period_s=command_period_s))
         # Joint order → actuator order for the plant's PD (desired-state input).
         to_actuator_order = builder.AddNamedSystem(
             "desired_state_to_actuator_order",

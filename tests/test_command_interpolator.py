@@ -315,7 +315,10 @@ def test_set_hold_position_validates_and_holds():
 def test_default_config_is_valid():
     config = CommandInterpolatorConfig()
     assert (config.interpolation, config.ramp_duration_s, config.poll_period_s,
-            config.poll_offset_s) == ("linear", 0.25, 0.01, 1e-4)
+            config.poll_offset_s) == ("linear", 0.25, None, 1e-4)
+    assert config.poll_timing(None) == (0.01, 1e-4)          # the receiver's rate
+    assert config.poll_timing(0.25) == (0.25, 1e-4)          # the uplink's, if known
+    assert CommandInterpolatorConfig(poll_period_s=0.002).poll_timing(0.25) == (0.002, 1e-4)
 
 
 @pytest.mark.parametrize("kwargs,match", [
@@ -325,7 +328,8 @@ def test_default_config_is_valid():
     ({"poll_period_s": float("nan")}, r"CommandInterpolatorConfig.poll_period_s = nan"),
     ({"poll_period_s": "fast"}, r"poll_period_s = 'fast' must be a number"),
     ({"poll_offset_s": 0.01}, r"poll_offset_s = 0.01 must be a number of seconds in "
-                              r"\[0, poll_period_s = 0.01\)"),
+                              r"\[0, poll period = 0.01\)"),
+    ({"poll_period_s": 0.002, "poll_offset_s": 0.003}, r"poll_offset_s = 0.003 must be"),
     ({"poll_offset_s": -1e-4}, r"poll_offset_s = -0.0001 must be"),
     ({"poll_offset_s": float("nan")}, r"poll_offset_s = nan must be"),
     ({"poll_offset_s": "soon"}, r"poll_offset_s = 'soon' must be"),
