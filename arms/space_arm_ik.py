@@ -351,6 +351,12 @@ def solve_space_arm_ik(
 def _newton(kinematics, X_desired, q_seed, box_lower, box_upper, tolerances, max_iterations):
     """Differential-IK Newton iterations inside [box_lower, box_upper] (module docstring).
 
+    For a 6-joint arm the Jacobian is square: inside the box the QP's step is the
+    Gauss-Newton step J⁻¹e itself (J v = α e with α = 1, nothing left to minimise), so it
+    is computed with one 6×6 solve, and the QP runs only when that step would leave the
+    box (or J is singular). The same iterates to the QP's tolerance, at a fraction of the
+    cost (the QP was ~0.4 ms of the ~0.8 ms per iteration).
+
     Returns:
         (q, position error m, orientation error rad, iterations) at the last iterate.
     """
@@ -359,31 +365,50 @@ def _newton(kinematics, X_desired, q_seed, box_lower, box_upper, tolerances, max
     params = kinematics._params
     params.set_joint_position_limits((box_lower, box_upper))
     zero_velocity = np.zeros(n)
+    rotation_desired = X_desired.rotation()
+    translation_desired = X_desired.translation()
     q = q_seed.copy()
     iterations = 0
     while True:
         X = kinematics.tool_transform(q)
-        position_m, orientation_rad = pose_error(X, X_desired)
+        # e = [log(R_d R^T); p_d - p], the spatial "velocity" that closes the gap in unit time.
+        rotation = rotation_desired.multiply(X.rotation().inverse()).ToAngleAxis()
+        translation_error = translation_desired - X.translation()
+        position_m = math.sqrt(float(translation_error @ translation_error))
+        orientation_rad = float(rotation.angle())
         if (position_m <= _CONVERGED_FRACTION * position_tolerance_m
                 and orientation_rad <= _CONVERGED_FRACTION * orientation_tolerance_rad):
             break
         if iterations >= max_iterations:
             break
-        # e = [log(R_d R^T); p_d - p], the spatial "velocity" that closes the gap in unit time.
-        rotation = X_desired.rotation().multiply(X.rotation().inverse()).ToAngleAxis()
-        error_twist = np.concatenate([
-            rotation.axis() * rotation.angle(), X_desired.translation() - X.translation()
-        ])
+        error_twist = np.concatenate([rotation.axis() * orientation_rad, translation_error])
         jacobian = kinematics._tool_jacobian()
-        result = DoDifferentialInverseKinematics(
-            q, zero_velocity, error_twist, jacobian, params
-        )
-        if result.status != DifferentialInverseKinematicsStatus.kSolutionFound:
-            break  # stuck against the box, or no QP solution
-        step = np.asarray(result.joint_velocities, dtype=float).reshape(n)
-        if not np.all(np.isfinite(step)):  # never seen; stop at the last finite iterate
-            break
+        step = _gauss_newton_step(jacobian, error_twist, q, box_lower, box_upper)
+        if step is None:
+            result = DoDifferentialInverseKinematics(
+                q, zero_velocity, error_twist, jacobian, params
+            )
+            if result.status != DifferentialInverseKinematicsStatus.kSolutionFound:
+                break  # stuck against the box, or no QP solution
+            step = np.asarray(result.joint_velocities, dtype=float).reshape(n)
+            if not np.all(np.isfinite(step)):  # never seen; stop at the last finite iterate
+                break
         iterations += 1
         # The QP meets the box to solver precision; clip so the answer is inside exactly.
         q = np.clip(q + step, box_lower, box_upper)
     return q, position_m, orientation_rad, iterations
+
+
+def _gauss_newton_step(jacobian, error_twist, q, box_lower, box_upper):
+    """J⁻¹e if J is square and invertible and q + J⁻¹e stays inside the box, else None."""
+    if jacobian.shape[0] != jacobian.shape[1]:
+        return None
+    try:
+        step = np.linalg.solve(jacobian, error_twist)
+    except np.linalg.LinAlgError:
+        return None
+    target = q + step
+    if not (np.all(np.isfinite(step)) and np.all(target >= box_lower)
+            and np.all(target <= box_upper)):
+        return None
+    return step

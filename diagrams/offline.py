@@ -600,7 +600,8 @@ def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q
     builder.Connect(source.get_state_planned_output_port(),
                     uplink.get_state_smoothed_input_port())
     # Stage 3: the onboard robot, at rest at the committed pose.
-    robot = AddOnboardRobot(builder, scenario, initial_position_rad=q_start)
+    robot = AddOnboardRobot(builder, scenario, initial_position_rad=q_start,
+                            command_period_s=period)
     connect_uplink_to_robot(builder, uplink, robot)
     logs = {
         "sequence_number": LogVectorOutput(uplink.get_sequence_number_output_port(), builder,

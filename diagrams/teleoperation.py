@@ -254,12 +254,18 @@ def AddGroundStation(builder: DiagramBuilder, scenario: Scenario, *,
 
 
 def AddOnboardRobot(builder: DiagramBuilder, scenario: Scenario, *,
-                    initial_position_rad) -> FlexibleJointArm:
-    """Adds the flexible-joint arm (interpolator + plant + tracker), starting at rest."""
+                    initial_position_rad, command_period_s: float | None = None
+                    ) -> FlexibleJointArm:
+    """Adds the flexible-joint arm (interpolator + plant + tracker), starting at rest.
+
+    ``command_period_s``: the period at which its command can change, when the caller knows
+    it (the uplink's, driving the robot directly): its interpolator polls only then (see
+    :class:`~telesmooth.systems.flexible_arm.FlexibleJointArm`); None: every 10 ms."""
     config = dataclasses.replace(
         scenario.onboard, arm=scenario.arm,
         initial_position_rad=tuple(float(v) for v in initial_position_rad))
-    return builder.AddNamedSystem("robot", FlexibleJointArm(config))
+    return builder.AddNamedSystem("robot", FlexibleJointArm(
+        config, command_period_s=command_period_s))
 
 
 def AddJointCommandSender(builder: DiagramBuilder, ground: GroundHandles, scenario: Scenario,
@@ -438,7 +444,10 @@ def MakeTeleoperationDiagram(scenario: Scenario, *, meshcat=None) -> Teleoperati
     builder = DiagramBuilder()
     ground = AddGroundStation(builder, scenario)
     q0 = ground.initial_position_rad
-    robot = AddOnboardRobot(builder, scenario, initial_position_rad=q0)
+    # Without the link the uplink drives the robot: its command changes only at the ticks.
+    robot = AddOnboardRobot(
+        builder, scenario, initial_position_rad=q0,
+        command_period_s=None if scenario.link.active else scenario.uplink.period_s)
     receiver = guard = link = None
     logs = {}
     if scenario.link.active:

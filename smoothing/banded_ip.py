@@ -65,6 +65,9 @@ _START_MULTIPLIER = 0.01
 _ACCEPTABLE_GAP_FACTOR = 10.0
 # Rows per chunk where a pass over a whole matrix would allocate large temporaries.
 _CHUNK_ROWS = 1 << 15
+# Rows per chunk of _gram_band (each row of A pairs up to 36 entries: 1 << 13 rows keep its
+# temporaries near 10 MB).
+_GRAM_CHUNK_ROWS = 1 << 13
 # Relative round-off allowed in a limit row's value F y (see ``run``).
 _PRIMAL_ROUND_OFF = 1e-13
 
@@ -140,29 +143,47 @@ class BandedIpResult:
     multipliers: np.ndarray
 
 
-def _band_of(matrix: sparse.spmatrix, half_bandwidth: int) -> np.ndarray:
-    """Lower band storage band[j, i − j] = M[i, j] (j ≤ i ≤ j + u) of a symmetric sparse
-    matrix, shape (n, u + 1), the layout of :mod:`~telesmooth.smoothing.lapack_banded`
-    (entries outside the band are ignored). LAPACK's banded Cholesky is about twice as fast
-    on the lower storage as on the upper one (measured at N = 10⁵)."""
-    matrix = sparse.csr_matrix(matrix)
-    n = matrix.shape[0]
+def _gram_band(rows: sparse.csr_matrix, half_bandwidth: int) -> np.ndarray:
+    """Lower band storage band[j, i − j] = (MᵀM)[i, j] (j ≤ i ≤ j + u) of the Gram matrix
+    of M's rows, shape (n, u + 1), the layout of :mod:`~telesmooth.smoothing.lapack_banded`
+    (LAPACK's banded Cholesky is about twice as fast on the lower storage as on the upper
+    one, measured at N = 10⁵).
+
+    MᵀM is never formed: each row with entries v_a (column c_a) adds v_a·v_b at
+    (max(c_a, c_b), min(c_a, c_b)) for every pair a ≤ b of its entries, summed chunk by chunk
+    of rows (the product's CSR form was ~1.4× M, and its temporaries more; memory, issue
+    20). ``half_bandwidth`` must be at least the widest row's span (c_max − c_min).
+    """
+    rows = sparse.csr_matrix(rows)
+    if not rows.has_canonical_format:      # a repeated column would pair with itself
+        rows = rows.copy()
+        rows.sum_duplicates()
+    n = rows.shape[1]
     width = half_bandwidth + 1
     band = np.zeros(n * width)
-    indptr, indices, data = matrix.indptr, matrix.indices, matrix.data
-    # In chunks of rows: the temporaries stay small and are reused (first touches of fresh
-    # memory, not arithmetic, dominated: 5.2 s in one pass at N = 10⁶ on these machines).
-    for start in range(0, n, _CHUNK_ROWS):
-        stop = min(n, start + _CHUNK_ROWS)
-        lo, hi = indptr[start], indptr[stop]
-        row = np.repeat(np.arange(start, stop), np.diff(indptr[start:stop + 1]))
-        col = indices[lo:hi]
-        offset = row - col                                        # M[j + offset, j]
-        inside = (offset >= 0) & (offset <= half_bandwidth)
-        # Columns of these rows' lower entries lie in [start − u, stop).
-        base = max(0, start - half_bandwidth) * width
-        flat = col[inside] * width + offset[inside] - base        # duplicates are summed
-        local = np.bincount(flat, weights=data[lo:hi][inside], minlength=0)
+    indptr, indices, data = rows.indptr, rows.indices, rows.data
+    counts = np.diff(indptr)
+    for start in range(0, rows.shape[0], _GRAM_CHUNK_ROWS):
+        stop = min(rows.shape[0], start + _GRAM_CHUNK_ROWS)
+        chunk_counts = counts[start:stop]
+        first_entry = indptr[start:stop]
+        most = int(chunk_counts.max(initial=0))
+        flat_parts, value_parts = [], []
+        for first in range(most):
+            for second in range(first, most):
+                with_pair = np.flatnonzero(chunk_counts > second)
+                entry_a = first_entry[with_pair] + first
+                entry_b = first_entry[with_pair] + second
+                col_a, col_b = indices[entry_a], indices[entry_b]
+                low = np.minimum(col_a, col_b)
+                flat_parts.append(low.astype(np.int64) * width + np.abs(col_a - col_b))
+                value_parts.append(data[entry_a] * data[entry_b])
+        if not flat_parts:
+            continue
+        flat = np.concatenate(flat_parts)
+        # The pairs of these rows fall in columns [min, max] of the chunk's entries.
+        base = int(flat.min())
+        local = np.bincount(flat - base, weights=np.concatenate(value_parts))
         band[base:base + local.size] += local
     return band.reshape(n, width)
 
@@ -196,10 +217,11 @@ class BandedQp:
         self.options = options
         self.n = self.a.shape[1]
         self.m = self.f.shape[0]
-        # Row-compressed transposes: their products gather instead of scattering.
-        self.a_t = self.a.T.tocsr()
+        # Aᵀ as a view (CSC, sharing A's arrays): a row-compressed copy made its products
+        # gather instead of scatter, but cost as much memory as A (memory, issue 20). F is
+        # small.
+        self.a_t = self.a.T
         self.f_t = self.f.T.tocsr()
-        self.normal = (self.a_t @ self.a).tocsr()
         self.half_bandwidth = _half_bandwidth(self.a, self.f)
         self._normal_factor = None
         if options.linear_solver != "qr":
@@ -222,12 +244,17 @@ class BandedQp:
         for offset in range(width):
             keep[:, offset][self.fixed] = False                        # M[v + offset, v]
             keep[:n - offset, offset][self.fixed[offset:]] = False     # M[v, v − offset]
-        self.normal_band = _band_of(self.normal, u)
-        self.normal_band *= keep
-        self.normal_band[self.fixed, 0] = 1.0
+        # AᵀA is needed only as a band (the sparse product is dropped once it is stored: its
+        # CSR form is ~1.4× A), and that band is kept in compressed form: a time-invariant
+        # model gives every sample the same rows (memory, issue 20).
+        normal_band = _gram_band(self.a, u)
+        normal_band *= keep
+        normal_band[self.fixed, 0] = 1.0
+        self._normal_band = _RepeatingBand(normal_band)
         # One buffer for every Newton step's band (a fresh 25 MB array per step cost ~15 ms
         # in page faults at N = 10⁵).
-        self._band_buffer = np.empty_like(self.normal_band)
+        self._band_buffer = np.empty_like(normal_band)
+        del normal_band
         f = self.f
         counts = np.diff(f.indptr)
         most = int(counts.max(initial=0))
@@ -259,12 +286,17 @@ class BandedQp:
             (pair_coef, (np.searchsorted(self.pair_positions, pair_flat), pair_rows)),
             shape=(self.pair_positions.size, self.m))
 
+    @property
+    def normal_band(self) -> np.ndarray:
+        """Band storage of AᵀA with the fixed rows masked (a new array)."""
+        return self._normal_band.expand(np.empty_like(self._band_buffer))
+
     def _band(self, weights) -> np.ndarray:
         """Band storage of AᵀA + Fᵀ diag(weights) F with the fixed rows masked, written into
         the one band buffer: the band, or the factor made from it, is valid until the next
         call."""
-        band = self._band_buffer
-        np.copyto(band, self.normal_band)
+        self._normal_factor = None      # it lives in this buffer
+        band = self._normal_band.expand(self._band_buffer)
         band.ravel()[self.pair_positions] += self.pair_map @ weights
         return band
 
@@ -272,7 +304,9 @@ class BandedQp:
         if requested != "auto":
             return requested
         try:
-            factor = cholesky_lower_band(self.normal_band)
+            # Factorised in the band buffer: valid until the next _band (the first Newton
+            # step), which is after the solve without limits that reuses it.
+            factor = cholesky_lower_band(self._band(np.zeros(self.m)), overwrite=True)
         except LinAlgError:
             return "qr"
         self._normal_factor = factor    # reused by the solve without limits
@@ -338,6 +372,7 @@ class BandedQp:
         try:
             if self._normal_factor is not None and not np.any(weights):
                 factor = self._normal_factor     # AᵀA alone, factorised by _choose_route
+                self._normal_factor = None       # used once (the start); a band's memory
             else:
                 factor = cholesky_lower_band(self._band(weights), overwrite=True)
             shifted = False
@@ -577,8 +612,10 @@ class BandedQp:
             multipliers=lam_u - lam_l)
 
     @functools.cached_property
-    def abs_a(self) -> sparse.csr_matrix:
-        return abs(self.a)
+    def normal(self) -> sparse.csr_matrix:
+        """AᵀA as a sparse matrix: formed only if a Newton step needs the regularised
+        factorisation (conjugate gradients on it); the band is all the other steps use."""
+        return (self.a.T.tocsr() @ self.a).tocsr()
 
     @functools.cached_property
     def abs_f(self) -> sparse.csr_matrix:
@@ -593,10 +630,24 @@ class BandedQp:
         """‖r_d‖∞ relative to the size of the terms summed (round-off in Aᵀ(Ay − c) grows
         with |A|ᵀ(|A||y| + |c|), ~1e8 × |y| at Δt = 0.01 s)."""
         dual_scale = 1.0 + max(
-            np.max((self.abs_a.T @ (self.abs_a @ np.abs(y) + np.abs(self.c)))[self.free],
-                   initial=0.0),
+            np.max(self._abs_a_products(np.abs(y), np.abs(self.c))[self.free], initial=0.0),
             np.max(self.abs_f.T @ (lam_u + lam_l)))
         return float(np.max(np.abs(r_d)) / dual_scale)
+
+    def _abs_a_products(self, y_abs, c_abs) -> np.ndarray:
+        """|A|ᵀ(|A| y_abs + c_abs), chunk by chunk of A's rows: |A| is never stored (it would
+        be as large as A's values; memory, issue 20)."""
+        indptr, indices, data = self.a.indptr, self.a.indices, self.a.data
+        out = np.zeros(self.n)
+        for start in range(0, self.a.shape[0], _CHUNK_ROWS):
+            stop = min(self.a.shape[0], start + _CHUNK_ROWS)
+            lo, hi = indptr[start], indptr[stop]
+            # Copies of A's index slices: nothing done to the chunk can touch A.
+            chunk = sparse.csr_matrix(
+                (np.abs(data[lo:hi]), indices[lo:hi].copy(), indptr[start:stop + 1] - lo),
+                shape=(stop - start, self.n))
+            out += chunk.T @ (chunk @ y_abs + c_abs[start:stop])
+        return out
 
     def unconstrained_optimum(self) -> np.ndarray:
         """argmin ½‖A y − c‖² with y[fixed] = 0, the limits ignored (n,): one factorisation of
@@ -613,6 +664,41 @@ class BandedQp:
                                   1, self.route, math.nan, math.nan, math.nan, np.zeros(0))
         return BandedIpResult(y + dy, True, "converged", 1, self.route, 0.0, 0.0, 0.0,
                               np.zeros(0))
+
+
+class _RepeatingBand:
+    """A band matrix stored as its repeating 4-row block and the blocks that differ.
+
+    AᵀA of a time-invariant model (same measurement, process and limit rows at every sample)
+    has the same four band rows for every sample but those next to the prior, the last
+    sample and fixed entries: storing them once instead of N times saves a whole band
+    (42 MB per joint at N = 10⁵ with half-bandwidth 12). Any other band is stored as it is
+    (every block an exception); :meth:`expand` gives the same array either way.
+    """
+
+    def __init__(self, band: np.ndarray):
+        n, width = band.shape
+        self.shape = band.shape
+        if n % 4 or n < 8:
+            self.block, self.rows, self.values = None, None, band.copy()
+            return
+        blocks = band.reshape(n // 4, 4, width)
+        # The most common block: the one of sample 1 unless it is itself an exception.
+        reference = blocks[n // 8]
+        differs = np.any(blocks != reference, axis=(1, 2))
+        self.block = reference.copy()
+        self.rows = np.flatnonzero(differs)
+        self.values = blocks[self.rows].copy()
+
+    def expand(self, out: np.ndarray) -> np.ndarray:
+        """Writes the band into ``out`` (shape :attr:`shape`) and returns it."""
+        if self.block is None:
+            np.copyto(out, self.values)
+            return out
+        blocks = out.reshape(-1, 4, self.shape[1])
+        blocks[:] = self.block
+        blocks[self.rows] = self.values
+        return out
 
 
 def _max_step(values, steps) -> float:

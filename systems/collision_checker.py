@@ -106,14 +106,16 @@ class CollisionChecker(LeafSystem):
     - ``collision_detected``: 1.0 if any of the last N samples collided, else 0.0; (1,).
       This is what the 4 Hz FIFO reads.
 
-    State (discrete): d (1) and the ring of the last N flags f = [c_{k−N+1}, …, c_k], oldest
-    first (N = ``config.latch_samples`` = ceil(latch_s / period_s), 26 by default).
+    State (discrete): d (1), the ring of the last N flags f = [c_{k−N+1}, …, c_k], oldest
+    first (N = ``config.latch_samples`` = ceil(latch_s / period_s), 26 by default), and the
+    target q_d whose distance d is (NaN before the first and after an invalid target).
 
     Update at t_k = k·period_s (offset 0), with q = q_target(t_k), h = distance_horizon_m,
     m = safety_margin_m:
 
         if q is finite:  d_k = min(h, min over checked pairs of signed distance(q))
-                         c_k = [d_k < m]
+                         (d_k = d_{k−1} without a query if q = q_d: the same target)
+                         c_k = [d_k < m];  q_d ← q
         else:            d_k = 0,  c_k = 1      (a NaN/inf target counts as a collision)
         f ← [f_2, …, f_N, c_k]
         min_distance = d_k,  in_collision = f_N,  collision_detected = max(f)
@@ -173,6 +175,9 @@ class CollisionChecker(LeafSystem):
         self._distance_state = self.DeclareDiscreteState(
             np.array([config.distance_horizon_m]))
         self._flags_state = self.DeclareDiscreteState(np.zeros(self._latch_samples))
+        # The target whose distance is in _distance_state (NaN: none), so that a target that
+        # did not change since the last sample is not queried again.
+        self._checked_q_state = self.DeclareDiscreteState(np.full(n, np.nan))
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update)
 
         self._min_distance_output = self.DeclareStateOutputPort(
@@ -217,16 +222,25 @@ class CollisionChecker(LeafSystem):
     def _update(self, context, discrete_state) -> None:
         q = (self._q_target_input.Eval(context)
              if self._q_target_input.HasValue(context) else None)
-        if q is None or q.shape != (self._num_joints,) or not np.all(np.isfinite(q)):
+        checked = discrete_state.get_mutable_vector(self._checked_q_state)
+        if q is None or q.shape != (self._num_joints,) or not all(map(math.isfinite, q)):
             distance, collision = 0.0, True
+            checked.SetFromVector(np.full(self._num_joints, np.nan))
+        elif np.array_equal(q, checked.get_value()):
+            # The same target as the last sample: the same distance (the query is a pure
+            # function of q; ~150 µs saved per sample while the operator holds still).
+            distance = context.get_discrete_state(self._distance_state).get_value()[0]
+            collision = distance < self._config.safety_margin_m
         else:
             result = self._model.query(q)
             distance = result.min_distance_m
             collision = result.in_collision(self._config.safety_margin_m)
-        flags = context.get_discrete_state(self._flags_state).get_value()
+            checked.SetFromVector(q)
         discrete_state.get_mutable_vector(self._distance_state).SetAtIndex(0, distance)
-        discrete_state.get_mutable_vector(self._flags_state).SetFromVector(
-            np.append(flags[1:], float(collision)))
+        # f ← [f_2, …, f_N, c_k], shifted in place in the update's copy of the state.
+        flags = discrete_state.get_mutable_vector(self._flags_state).get_mutable_value()
+        flags[:-1] = flags[1:].copy()
+        flags[-1] = float(collision)
 
     def _calc_in_collision(self, context, output) -> None:
         output.SetAtIndex(0, context.get_discrete_state(self._flags_state).get_value()[-1])

@@ -8,8 +8,14 @@ emits ``[q_d; v_d]`` for ``MultibodyPlant.get_desired_state_input_port``. It is 
 onboard gatekeeper: a command that is not finite or is outside the joint limits never
 reaches the plant; the robot keeps its current target (holds) and a flag is raised.
 
-The numerics are the two pure functions :func:`ramp_desired_state` and
-:func:`command_violation` (numpy only, tested without a simulator).
+Two parts, so that no Python runs at the plant rate: the :class:`CommandGate` (Python)
+reads the held command at its polls and keeps the ramp in progress, (t₀, q₀, q₁), as
+discrete state, changed once per command; the set-point itself, a closed-form function of
+that ramp and the time, is evaluated by Drake (a ``SymbolicVectorSystem``,
+:func:`RampSetPoint`) whenever the plant reads it.
+
+The numerics are the pure functions :func:`ramp_desired_state` (the oracle of the symbolic
+set-point) and :func:`command_violation` (numpy only, tested without a simulator).
 """
 
 from __future__ import annotations
@@ -19,20 +25,31 @@ import logging
 import math
 
 import numpy as np
-from pydrake.systems.framework import LeafSystem
+from pydrake.symbolic import Variable, if_then_else, logical_and
+from pydrake.symbolic import max as symbolic_max
+from pydrake.symbolic import min as symbolic_min
+from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import SymbolicVectorSystem
 
 from telesmooth.systems.timing import check_period
 
 __all__ = [
+    "DEFAULT_POLL_PERIOD_S",
+    "CommandGate",
     "CommandInterpolator",
     "CommandInterpolatorConfig",
     "INTERPOLATIONS",
+    "RampSetPoint",
     "command_violation",
     "ramp_desired_state",
 ]
 
 INTERPOLATIONS = ("linear", "zoh")
 """The interpolation options of :class:`CommandInterpolatorConfig`."""
+
+DEFAULT_POLL_PERIOD_S = 0.01
+"""The poll period when neither the config nor the diagram gives one: the onboard command
+receiver's (and the link guard's) 10 ms."""
 
 _logger = logging.getLogger(__name__)
 
@@ -48,14 +65,27 @@ class CommandInterpolatorConfig:
         ramp_duration_s: Duration of a linear ramp, s (> 0); one uplink period (0.25 s) by
             default, so that a steady 4 Hz stream gives a continuous, piecewise-linear
             desired position. Unused by ``"zoh"``.
-        poll_period_s: How often the held command is read, s (> 0); a new command is
-            detected at the first poll at which it differs from the current target, i.e.
-            at most one poll period late. 1 ms = the plant step.
+        poll_period_s: How often the held command is read, s (> 0), or None (default):
+            the period at which the command can change, as the diagram that connects the
+            robot knows it (``command_period_s`` of :class:`CommandInterpolator`): the
+            uplink's 0.25 s when the uplink drives the robot directly, the onboard command
+            receiver's 10 ms (:data:`DEFAULT_POLL_PERIOD_S`) behind a link. A new command is
+            detected at the first poll at which it differs from the current target.
+        poll_offset_s: Time of the first poll, s (≥ 0, below the poll period); 0.1 ms by
+            default. The upstream commands change at multiples of the poll period (the
+            uplink's ticks, the receiver's polls), and a poll at the same instant would not
+            see the change (Drake computes simultaneous updates from the state before the
+            instant): it would find it one whole poll period later. Polling 0.1 ms after
+            the instant, the robot follows the command from 0.1 ms after it was issued.
+            That delay is not free: on Defaults the response error e grows by about 20 %
+            per millisecond of it (the servo stalls at the end of each ramp until the next
+            command is seen), so keep it small.
     """
 
     interpolation: str = "linear"
     ramp_duration_s: float = 0.25
-    poll_period_s: float = 0.001
+    poll_period_s: float | None = None
+    poll_offset_s: float = 1e-4
 
     def __post_init__(self) -> None:
         if self.interpolation not in INTERPOLATIONS:
@@ -64,7 +94,30 @@ class CommandInterpolatorConfig:
                 f"one of {INTERPOLATIONS}"
             )
         check_period("CommandInterpolatorConfig.ramp_duration_s", self.ramp_duration_s)
-        check_period("CommandInterpolatorConfig.poll_period_s", self.poll_period_s)
+        if self.poll_period_s is not None:
+            check_period("CommandInterpolatorConfig.poll_period_s", self.poll_period_s)
+        self.poll_timing(DEFAULT_POLL_PERIOD_S)
+
+    def poll_timing(self, command_period_s: float | None) -> tuple[float, float]:
+        """(period, offset) of the polls, s: ``poll_period_s``, or ``command_period_s`` if it
+        is None (:data:`DEFAULT_POLL_PERIOD_S` if that is None too), and ``poll_offset_s``.
+
+        Raises:
+            ValueError: naming the field, if the offset is not in [0, period).
+        """
+        if self.poll_period_s is not None:
+            period = check_period("CommandInterpolatorConfig.poll_period_s", self.poll_period_s)
+        elif command_period_s is not None:
+            period = check_period("command_period_s", command_period_s)
+        else:
+            period = DEFAULT_POLL_PERIOD_S
+        offset = self.poll_offset_s
+        if isinstance(offset, bool) or not isinstance(offset, (int, float)) \
+                or not 0.0 <= offset < period:
+            raise ValueError(
+                f"CommandInterpolatorConfig.poll_offset_s = {offset!r} must be a number of "
+                f"seconds in [0, poll period = {period!r})")
+        return period, float(offset)
 
 
 def ramp_desired_state(
@@ -148,7 +201,239 @@ def _validated_vector(field: str, values, size: int) -> np.ndarray:
     return vector
 
 
-class CommandInterpolator(LeafSystem):
+def RampSetPoint(num_joints: int, ramp_duration_s: float, lead_s: float = 0.0, *,
+                 continuous_state: bool = False) -> SymbolicVectorSystem:
+    r"""The set-point of a ramp, evaluated by Drake: [t₀; q₀; q₁] and the time → [q_d; v_d].
+
+    .. pydrake_system::
+
+        name: RampSetPoint
+        input_ports:
+        - u0
+        output_ports:
+        - y0
+
+    Input ``u0``: the ramp in progress, [t₀ (s), q₀ (rad, n), q₁ (rad, n)], shape (2n + 1,)
+    (the :class:`CommandGate`'s ``ramp`` port). Output ``y0``: [q_d; v_d], rad and rad/s,
+    shape (2n,), at the context's time t, with e = (t + lead) − t₀, T = ``ramp_duration_s``,
+    s = min(max(e/T, 0), 1):
+
+        q_d = q₁                      if s ≥ 1,  else  q₀ + s·(q₁ − q₀)
+        v_d = (q₁ − q₀)/T             if 0 ≤ e < T,  else  0
+
+    the operations of :func:`ramp_desired_state` in the same order, so the two agree to the
+    last bit. Direct feedthrough, no state; Drake re-evaluates it whenever the time or the
+    ramp changed, in C++ (about 15 µs for 6 joints, against about 60 µs for the same formula
+    in a Python output callback).
+
+    Args:
+        num_joints: n ≥ 1.
+        ramp_duration_s: T, s (> 0).
+        lead_s: The output at t is the ramp at t + lead_s, s (≥ 0).
+        continuous_state: Give the system one continuous state x with ẋ = 0 (x is never
+            read). Needed in a diagram that has continuous state (e.g. a continuous plant):
+            drake 1.51's SymbolicVectorSystem aborts when an integrator asks a stateless
+            one for its time derivatives. Without it, a purely discrete diagram needs no
+            integrator (about 7 % faster).
+    """
+    n = int(num_joints)
+    period = float(ramp_duration_s)
+    time = Variable("t")
+    start_time = Variable("t0")
+    start = [Variable(f"q0_{i}") for i in range(n)]
+    target = [Variable(f"q1_{i}") for i in range(n)]
+    elapsed = (time + float(lead_s)) - start_time
+    fraction = symbolic_min(symbolic_max(elapsed / period, 0.0), 1.0)
+    moving = logical_and(elapsed >= 0.0, elapsed < period)
+    position = [if_then_else(fraction >= 1.0, target[i], start[i] + fraction * (target[i] - start[i]))
+                for i in range(n)]
+    velocity = [if_then_else(moving, (target[i] - start[i]) / period, 0.0) for i in range(n)]
+    inputs = [start_time] + start + target
+    if continuous_state:
+        unused = Variable("x")
+        system = SymbolicVectorSystem(time=time, state=[unused], input=inputs,
+                                      dynamics=[0.0 * unused], output=position + velocity)
+    else:
+        system = SymbolicVectorSystem(time=time, input=inputs, output=position + velocity)
+    system.set_name("ramp_set_point")
+    return system
+
+
+class CommandGate(LeafSystem):
+    r"""The command gate of :class:`CommandInterpolator`: polls the held command, rejects
+    unsafe ones and keeps the ramp in progress.
+
+    .. pydrake_system::
+
+        name: CommandGate
+        input_ports:
+        - q_commanded
+        - command_time (optional)
+        output_ports:
+        - ramp
+        - command_rejected
+
+    Ports (n joints): ``q_commanded`` and ``command_time`` as in :class:`CommandInterpolator`;
+    ``ramp``: [t₀, q₀ (n), q₁ (n)], the ramp in progress, (2n + 1,) (for
+    :func:`RampSetPoint`); ``command_rejected``: [flag], (1,). Both outputs are state (no
+    feedthrough), evaluated by Drake without a Python call.
+
+    State (discrete): the ramp [t₀, q₀, q₁]; the rejected flag [f]; [rejected-command count,
+    last rejected command (n)] (a held invalid command is counted once). The poll (see
+    :meth:`CommandInterpolatorConfig.poll_timing`) is described in
+    :class:`CommandInterpolator`.
+    """
+
+    def __init__(
+        self,
+        config: CommandInterpolatorConfig = CommandInterpolatorConfig(),
+        *,
+        joint_names,
+        lower_rad,
+        upper_rad,
+        initial_position_rad=None,
+        command_period_s: float | None = None,
+    ):
+        """Validates the joint data and declares ports, state and the poll event.
+
+        Args and Raises: as :class:`CommandInterpolator` (without ``lead_s``).
+        """
+        super().__init__()
+        if not isinstance(config, CommandInterpolatorConfig):
+            raise ValueError(f"config = {config!r} must be a CommandInterpolatorConfig")
+        names = tuple(joint_names)
+        if not names or not all(isinstance(name, str) for name in names):
+            raise ValueError(f"joint_names = {joint_names!r} must be a non-empty list of str")
+        if len(set(names)) != len(names):
+            raise ValueError(f"joint_names = {joint_names!r} must be unique")
+        n = len(names)
+        lower = _validated_vector("lower_rad", lower_rad, n)
+        upper = _validated_vector("upper_rad", upper_rad, n)
+        for index in range(n):
+            if not lower[index] < upper[index]:
+                raise ValueError(
+                    f"lower_rad[{index}] ({names[index]}) = {float(lower[index])!r} must be "
+                    f"below upper_rad[{index}] = {float(upper[index])!r}"
+                )
+        q0 = np.zeros(n) if initial_position_rad is None else _validated_vector(
+            "initial_position_rad", initial_position_rad, n)
+        for index in range(n):
+            if not lower[index] <= q0[index] <= upper[index]:
+                raise ValueError(
+                    f"initial_position_rad[{index}] ({names[index]}) = {float(q0[index])!r} "
+                    f"is outside the joint limits [{float(lower[index])!r}, "
+                    f"{float(upper[index])!r}]"
+                )
+        self._config = config
+        self._joint_names = names
+        self._lower = lower
+        self._upper = upper
+
+        self._q_commanded_input = self.DeclareVectorInputPort("q_commanded", n)
+        self._command_time_input = self.DeclareVectorInputPort("command_time", 1)
+
+        # [t₀, q₀ (n), q₁ (n)]: the ramp in progress.
+        self._ramp_state = self.DeclareDiscreteState(np.concatenate([[0.0], q0, q0]))
+        self._rejected_state = self.DeclareDiscreteState(np.zeros(1))
+        # [number of rejected commands, last rejected command (n)]
+        self._rejections_state = self.DeclareDiscreteState(
+            np.concatenate([[0.0], np.full(n, np.nan)]))
+        poll_period_s, poll_offset_s = config.poll_timing(command_period_s)
+        self.DeclarePeriodicDiscreteUpdateEvent(poll_period_s, poll_offset_s,
+                                                self._update_on_poll)
+
+        self._ramp_output = self.DeclareStateOutputPort("ramp", self._ramp_state)
+        self._command_rejected_output = self.DeclareStateOutputPort(
+            "command_rejected", self._rejected_state)
+
+    # -- accessors ------------------------------------------------------------------------
+
+    @property
+    def config(self) -> CommandInterpolatorConfig:
+        return self._config
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self._joint_names
+
+    @property
+    def num_joints(self) -> int:
+        return len(self._joint_names)
+
+    def get_q_commanded_input_port(self):
+        return self._q_commanded_input
+
+    def get_command_time_input_port(self):
+        return self._command_time_input
+
+    def get_ramp_output_port(self):
+        return self._ramp_output
+
+    def get_command_rejected_output_port(self):
+        return self._command_rejected_output
+
+    def get_rejected_command_count(self, context) -> int:
+        """How many distinct commands were rejected so far (in this context)."""
+        return int(context.get_discrete_state(self._rejections_state).get_value()[0])
+
+    def get_ramp(self, context) -> tuple[np.ndarray, np.ndarray, float]:
+        """(q₀, q₁, t₀) of the current ramp: start (rad), target (rad), start time (s)."""
+        n = self.num_joints
+        ramp = context.get_discrete_state(self._ramp_state).get_value()
+        return ramp[1:1 + n].copy(), ramp[1 + n:].copy(), float(ramp[0])
+
+    def SetHoldPosition(self, context, q_rad) -> None:
+        """Makes this context hold ``q_rad`` from its current time (see
+        :meth:`CommandInterpolator.SetHoldPosition`)."""
+        q = _validated_vector("q_rad", q_rad, self.num_joints)
+        reason = command_violation(q, self._lower, self._upper, self._joint_names)
+        if reason is not None:
+            raise ValueError(f"SetHoldPosition: {reason}")
+        context.SetDiscreteState(self._ramp_state, np.concatenate([[context.get_time()], q, q]))
+        context.SetDiscreteState(self._rejected_state, [0.0])
+
+    # -- the poll -------------------------------------------------------------------------
+
+    def _update_on_poll(self, context, discrete_state) -> None:
+        n = self.num_joints
+        command = self._q_commanded_input.Eval(context)
+        ramp = context.get_discrete_state(self._ramp_state).get_value()
+        target = ramp[1 + n:]
+        rejected = context.get_discrete_state(self._rejected_state).get_value()[0]
+        if np.array_equal(command, target):
+            if rejected:
+                discrete_state.get_mutable_vector(self._rejected_state).SetAtIndex(0, 0.0)
+            return
+        rejections = context.get_discrete_state(self._rejections_state).get_value()
+        if rejected and np.array_equal(command, rejections[1:], equal_nan=True):
+            return
+        reason = command_violation(command, self._lower, self._upper, self._joint_names)
+        if reason is not None:
+            _logger.warning(
+                "%s: command rejected at t = %.6f s, holding the current target: %s",
+                self.GetSystemPathname(), context.get_time(), reason)
+            discrete_state.get_mutable_vector(self._rejected_state).SetAtIndex(0, 1.0)
+            discrete_state.get_mutable_vector(self._rejections_state).SetFromVector(
+                np.concatenate([[rejections[0] + 1.0], command]))
+            return
+        now = context.get_time()
+        previous_start_time = ramp[0]
+        start_time = now
+        if self._command_time_input.HasValue(context):
+            issued = float(self._command_time_input.Eval(context)[0])
+            if math.isfinite(issued) and previous_start_time <= issued <= now:
+                start_time = issued
+        if self._config.interpolation == "linear":
+            start, _ = ramp_desired_state(ramp[1:1 + n], target, previous_start_time,
+                                          self._config.ramp_duration_s, start_time)
+        else:
+            start = command
+        discrete_state.get_mutable_vector(self._ramp_state).SetFromVector(
+            np.concatenate([[start_time], start, command]))
+        discrete_state.get_mutable_vector(self._rejected_state).SetAtIndex(0, 0.0)
+
+
+class CommandInterpolator(Diagram):
     r"""Motor-side set-point generator and command gate: held 4 Hz commands → [q_d; v_d].
 
     .. pydrake_system::
@@ -177,10 +462,14 @@ class CommandInterpolator(LeafSystem):
     - ``command_rejected``: 1.0 while the last received command was rejected, else 0.0,
       shape (1,).
 
-    State (discrete, updated every ``poll_period_s`` at t_k = k·poll_period_s, offset 0):
-    ramp start q₀ (n), ramp target q₁ (n), ramp start time t₀ (1), [rejected flag,
-    rejected-command count] (2), and the last rejected command (n; to count a held invalid
-    command once).
+    Inside: a :class:`CommandGate` ("command_gate", Python, runs at its polls only) keeps
+    the ramp; a :func:`RampSetPoint` ("ramp_set_point", evaluated by Drake in C++) turns
+    the ramp and the time into the set-point, so nothing runs in Python at the plant rate.
+
+    State (the gate's, discrete, updated every poll period P (``poll_period_s``, or
+    ``command_period_s``, or 10 ms) at t_k = ``poll_offset_s`` + k·P): the ramp [t₀, q₀ (n), q₁ (n)] (start
+    time, start, target), the rejected flag (1), and [rejected-command count, last rejected
+    command (n)] (to count a held invalid command once).
 
     Poll at t_k, with u = q_commanded(t_k):
 
@@ -196,7 +485,7 @@ class CommandInterpolator(LeafSystem):
       finite and within [t₀, t_k] (the command's own instant), else s = t_k:
       ``"linear"``: q₀ ← q_d(s) (on the ramp in progress), q₁ ← u, t₀ ← s;
       ``"zoh"``: q₀ ← u, q₁ ← u, t₀ ← s; flag ← 0. Starting at s < t_k moves q_d at t_k by
-      (t_k − s)·(v_new − v_old), one poll period's worth of the velocity change.
+      (t_k − s)·(v_new − v_old), the velocity change times the time the poll was late.
 
     Output at any time t (:func:`ramp_desired_state`), T = ``ramp_duration_s``,
     s = clip((t + lead − t₀)/T, 0, 1) (lead = the constructor's ``lead_s``, 0 by default):
@@ -208,8 +497,8 @@ class CommandInterpolator(LeafSystem):
     starts a new ramp from the current q_d (the position is continuous, the velocity
     jumps). With a steady 4 Hz stream and T = 0.25 s, q_d is the piecewise-linear
     interpolation of the commands delayed by one uplink period less the lead (exactly, with
-    ``command_time``; else plus at most one poll period: a command that changes at t is
-    seen at the first poll after t, or at t itself if the upstream value has already
+    ``command_time``; else plus the time until the next poll: a command that changes at t
+    is seen at the first poll after t, or at t itself if the upstream value has already
     changed when the poll runs).
 
     Before the first command (and at t = 0): q₀ = q₁ = ``initial_position_rad``, t₀ = 0,
@@ -228,8 +517,10 @@ class CommandInterpolator(LeafSystem):
         upper_rad,
         initial_position_rad=None,
         lead_s: float = 0.0,
+        continuous_diagram: bool = False,
+        command_period_s: float | None = None,
     ):
-        """Validates the joint data and declares ports, state and the poll event.
+        """Validates the joint data and builds the gate and the set-point evaluator.
 
         Args:
             config: Interpolation settings.
@@ -244,102 +535,75 @@ class CommandInterpolator(LeafSystem):
                 :class:`~telesmooth.systems.flexible_arm.FlexibleJointArm` sets its plant
                 step here, so the motors track the ramp itself instead of lagging it by one
                 step (which would make the tracking error grow with the plant step).
+            continuous_diagram: True if this system will be part of a diagram with
+                continuous state (a continuous plant): see :func:`RampSetPoint`'s
+                ``continuous_state``.
+            command_period_s: The period at which ``q_commanded`` can change, s (the
+                upstream source's: the uplink's, the receiver's); the poll period when
+                ``config.poll_period_s`` is None (10 ms if this is None too).
 
         Raises:
             ValueError: naming the field, joint and value, if any argument is invalid.
         """
         super().__init__()
-        if not isinstance(config, CommandInterpolatorConfig):
-            raise ValueError(f"config = {config!r} must be a CommandInterpolatorConfig")
-        names = tuple(joint_names)
-        if not names or not all(isinstance(name, str) for name in names):
-            raise ValueError(f"joint_names = {joint_names!r} must be a non-empty list of str")
-        if len(set(names)) != len(names):
-            raise ValueError(f"joint_names = {joint_names!r} must be unique")
-        n = len(names)
-        lower = _validated_vector("lower_rad", lower_rad, n)
-        upper = _validated_vector("upper_rad", upper_rad, n)
-        for index in range(n):
-            if not lower[index] < upper[index]:
-                raise ValueError(
-                    f"lower_rad[{index}] ({names[index]}) = {float(lower[index])!r} must be "
-                    f"below upper_rad[{index}] = {float(upper[index])!r}"
-                )
-        q0 = np.zeros(n) if initial_position_rad is None else _validated_vector(
-            "initial_position_rad", initial_position_rad, n)
-        for index in range(n):
-            if not lower[index] <= q0[index] <= upper[index]:
-                raise ValueError(
-                    f"initial_position_rad[{index}] ({names[index]}) = {float(q0[index])!r} "
-                    f"is outside the joint limits [{float(lower[index])!r}, "
-                    f"{float(upper[index])!r}]"
-                )
+        builder = DiagramBuilder()
+        gate = builder.AddNamedSystem("command_gate", CommandGate(
+            config, joint_names=joint_names, lower_rad=lower_rad, upper_rad=upper_rad,
+            initial_position_rad=initial_position_rad, command_period_s=command_period_s))
         if isinstance(lead_s, bool) or not isinstance(lead_s, (int, float)) \
                 or not math.isfinite(lead_s) or lead_s < 0.0:
             raise ValueError(f"lead_s = {lead_s!r} must be finite and >= 0")
-        self._config = config
-        self._joint_names = names
-        self._lower = lower
-        self._upper = upper
+        set_point = builder.AddNamedSystem("ramp_set_point", RampSetPoint(
+            gate.num_joints, config.ramp_duration_s, float(lead_s),
+            continuous_state=bool(continuous_diagram)))
+        builder.Connect(gate.get_ramp_output_port(), set_point.get_input_port())
+        builder.ExportInput(gate.get_q_commanded_input_port(), "q_commanded")
+        builder.ExportInput(gate.get_command_time_input_port(), "command_time")
+        builder.ExportOutput(set_point.get_output_port(), "state_desired")
+        builder.ExportOutput(gate.get_command_rejected_output_port(), "command_rejected")
+        builder.BuildInto(self)
+        self._gate = gate
         self._lead_s = float(lead_s)
-
-        self._q_commanded_input = self.DeclareVectorInputPort("q_commanded", n)
-        self._command_time_input = self.DeclareVectorInputPort("command_time", 1)
-
-        self._ramp_start_state = self.DeclareDiscreteState(q0.copy())
-        self._ramp_target_state = self.DeclareDiscreteState(q0.copy())
-        self._ramp_start_time_state = self.DeclareDiscreteState(np.zeros(1))
-        # [rejected flag (0/1), number of rejected commands]
-        self._rejection_state = self.DeclareDiscreteState(np.zeros(2))
-        self._last_rejected_state = self.DeclareDiscreteState(np.full(n, np.nan))
-        self.DeclarePeriodicDiscreteUpdateEvent(
-            config.poll_period_s, 0.0, self._update_on_poll)
-
-        # Outputs depend on the state and the time only (no feedthrough of q_commanded).
-        self._state_desired_output = self.DeclareVectorOutputPort(
-            "state_desired", 2 * n, self._calc_state_desired,
-            prerequisites_of_calc={self.time_ticket(), self.xd_ticket()})
-        self._command_rejected_output = self.DeclareVectorOutputPort(
-            "command_rejected", 1, self._calc_command_rejected,
-            prerequisites_of_calc={self.xd_ticket()})
 
     # -- accessors ------------------------------------------------------------------------
 
     @property
     def config(self) -> CommandInterpolatorConfig:
-        return self._config
+        return self._gate.config
 
     @property
     def joint_names(self) -> tuple[str, ...]:
-        return self._joint_names
+        return self._gate.joint_names
 
     @property
     def num_joints(self) -> int:
-        return len(self._joint_names)
+        return self._gate.num_joints
+
+    @property
+    def gate(self) -> CommandGate:
+        """The command gate (the poll and its state)."""
+        return self._gate
 
     def get_q_commanded_input_port(self):
-        return self._q_commanded_input
+        return self.GetInputPort("q_commanded")
 
     def get_command_time_input_port(self):
-        return self._command_time_input
+        return self.GetInputPort("command_time")
 
     def get_state_desired_output_port(self):
-        return self._state_desired_output
+        return self.GetOutputPort("state_desired")
 
     def get_command_rejected_output_port(self):
-        return self._command_rejected_output
+        return self.GetOutputPort("command_rejected")
 
     def get_rejected_command_count(self, context) -> int:
-        """How many distinct commands were rejected so far (in this context)."""
-        return int(context.get_discrete_state(self._rejection_state).get_value()[1])
+        """How many distinct commands were rejected so far (``context``: this system's)."""
+        return self._gate.get_rejected_command_count(
+            self.GetSubsystemContext(self._gate, context))
 
     def get_ramp(self, context) -> tuple[np.ndarray, np.ndarray, float]:
         """(q₀, q₁, t₀) of the current ramp: start (rad), target (rad), start time (s)."""
-        return (
-            context.get_discrete_state(self._ramp_start_state).get_value().copy(),
-            context.get_discrete_state(self._ramp_target_state).get_value().copy(),
-            float(context.get_discrete_state(self._ramp_start_time_state).get_value()[0]),
-        )
+        return self._gate.get_ramp(self.GetSubsystemContext(self._gate, context))
 
     def SetHoldPosition(self, context, q_rad) -> None:
         """Makes this context hold ``q_rad`` from its current time (no ramp, flag cleared).
@@ -350,72 +614,4 @@ class CommandInterpolator(LeafSystem):
         Raises:
             ValueError: if ``q_rad`` is not n finite values within the joint limits.
         """
-        q = _validated_vector("q_rad", q_rad, self.num_joints)
-        reason = command_violation(q, self._lower, self._upper, self._joint_names)
-        if reason is not None:
-            raise ValueError(f"SetHoldPosition: {reason}")
-        context.SetDiscreteState(self._ramp_start_state, q)
-        context.SetDiscreteState(self._ramp_target_state, q)
-        context.SetDiscreteState(self._ramp_start_time_state, [context.get_time()])
-        rejection = context.get_discrete_state(self._rejection_state).get_value()
-        context.SetDiscreteState(self._rejection_state, [0.0, rejection[1]])
-
-    # -- callbacks ------------------------------------------------------------------------
-
-    def _desired(self, context) -> tuple[np.ndarray, np.ndarray]:
-        # Read the state in place (ramp_desired_state does not modify its inputs).
-        start = context.get_discrete_state(self._ramp_start_state).get_value()
-        target = context.get_discrete_state(self._ramp_target_state).get_value()
-        start_time = context.get_discrete_state(self._ramp_start_time_state).get_value()[0]
-        return ramp_desired_state(
-            start, target, start_time, self._config.ramp_duration_s,
-            context.get_time() + self._lead_s)
-
-    def _calc_state_desired(self, context, output) -> None:
-        position, velocity = self._desired(context)
-        output.SetFromVector(np.concatenate([position, velocity]))
-
-    def _calc_command_rejected(self, context, output) -> None:
-        output.SetAtIndex(0, context.get_discrete_state(self._rejection_state).get_value()[0])
-
-    def _update_on_poll(self, context, discrete_state) -> None:
-        command = self._q_commanded_input.Eval(context)
-        target = context.get_discrete_state(self._ramp_target_state).get_value()
-        rejected, count = context.get_discrete_state(self._rejection_state).get_value()
-        if np.array_equal(command, target):
-            if rejected:
-                discrete_state.get_mutable_vector(self._rejection_state).SetFromVector(
-                    [0.0, count])
-            return
-        last_rejected = context.get_discrete_state(self._last_rejected_state).get_value()
-        if rejected and np.array_equal(command, last_rejected, equal_nan=True):
-            return
-        reason = command_violation(command, self._lower, self._upper, self._joint_names)
-        if reason is not None:
-            _logger.warning(
-                "%s: command rejected at t = %.6f s, holding the current target: %s",
-                self.get_name() or "CommandInterpolator", context.get_time(), reason)
-            discrete_state.get_mutable_vector(self._rejection_state).SetFromVector(
-                [1.0, count + 1.0])
-            discrete_state.get_mutable_vector(self._last_rejected_state).SetFromVector(
-                command)
-            return
-        now = context.get_time()
-        previous_start_time = context.get_discrete_state(
-            self._ramp_start_time_state).get_value()[0]
-        start_time = now
-        if self._command_time_input.HasValue(context):
-            issued = float(self._command_time_input.Eval(context)[0])
-            if math.isfinite(issued) and previous_start_time <= issued <= now:
-                start_time = issued
-        if self._config.interpolation == "linear":
-            start, _ = ramp_desired_state(
-                context.get_discrete_state(self._ramp_start_state).get_value(), target,
-                previous_start_time, self._config.ramp_duration_s, start_time)
-        else:
-            start = command
-        discrete_state.get_mutable_vector(self._ramp_start_state).SetFromVector(start)
-        discrete_state.get_mutable_vector(self._ramp_target_state).SetFromVector(command)
-        discrete_state.get_mutable_vector(self._ramp_start_time_state).SetFromVector(
-            [start_time])
-        discrete_state.get_mutable_vector(self._rejection_state).SetFromVector([0.0, count])
+        self._gate.SetHoldPosition(self.GetMutableSubsystemContext(self._gate, context), q_rad)

@@ -9,8 +9,9 @@ angles. Inside it are three parts:
   motor-side actuated joint ``<name>_motor`` in series with a link-side joint
   ``<name>_deflection`` that carries a spring and a damper (see
   :mod:`telesmooth.arms.description`). The motor servo is the plant's own PD controller on
-  the motor joints (gains from the model's ``drake:controller_gains``). Drake computes it
-  implicitly, so it is stable at a 1 ms step.
+  the motor joints (gains from the model's ``drake:controller_gains``). By default the
+  plant is continuous and the Simulator's error-controlled integrator chooses its steps;
+  with a fixed step (``time_step_s`` > 0) Drake computes the PD implicitly (SAP).
 * a :class:`~telesmooth.systems.command_interpolator.CommandInterpolator`, which turns the
   held commands into the servo's desired state and rejects unsafe commands (the robot
   holds).
@@ -124,9 +125,14 @@ class FlexibleArmConfig:
     Attributes:
         arm: Which arm: ``"air_bearing_arm"`` (default; the planar 3-joint laboratory set-up,
             moving in the world x-y plane) or ``"space_arm"`` (the 6-DOF manipulator).
-        time_step_s: Plant step, s (≥ 0). The default 1 ms gives a discrete plant with
-            implicit PD and damping. 0 gives a continuous plant, integrated by the
-            Simulator's error-controlled integrator.
+        time_step_s: Plant step, s (≥ 0). 0 (default): a continuous plant, integrated by
+            the Simulator's error-controlled integrator (drake's default: third-order
+            Runge–Kutta, accuracy 1e-4), which follows each new command from the instant
+            the interpolator sees it. A positive step gives a discrete plant (SAP, implicit
+            PD and damping) that reads its set-point at the start of each step: a command
+            sent at t moves the motors only from the first step after t, so the set-point
+            stalls for up to one step at every command, and the tracking error grows with
+            the step (see the README's "Simulation speed and accuracy").
         discrete_contact_approximation: One of :data:`DISCRETE_CONTACT_APPROXIMATIONS`.
             The default is ``"lagged"``. Without contact, all of them give the same
             result here.
@@ -143,7 +149,7 @@ class FlexibleArmConfig:
     """
 
     arm: str = "air_bearing_arm"
-    time_step_s: float = 1e-3
+    time_step_s: float = 0.0
     discrete_contact_approximation: str = "lagged"
     gravity_m_per_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
     interpolator: CommandInterpolatorConfig = dataclasses.field(
@@ -292,9 +298,9 @@ class FlexibleJointArm(Diagram):
     - ``command_rejected``: 1.0 while the last received command was rejected (not finite,
       or outside the joint limits) and the robot holds its previous target, else 0.0, (1,).
     - ``state_desired``: the servo set-point [q_d; v_d], rad and rad/s, (2n,), joint order;
-      at time t it is the ramp at t + h (h = ``time_step_s``): the discrete plant reads it at
-      the start of a step and its implicit PD reaches it at the end, so the motors track
-      the ramp itself, not the ramp one step late.
+      at time t it is the ramp at t + h (h = ``time_step_s``, 0 for the continuous plant):
+      a discrete plant reads it at the start of a step and its implicit PD reaches it at
+      the end, so the motors track the ramp itself, not the ramp one step late.
     - ``plant_state``: the full plant state [q; v], (4n,): per joint (motor, deflection)
       positions in the plant's order, then velocities (see ``plant.GetStateNames()``).
     - ``query_object``: SceneGraph's query output, for visualizers.
@@ -307,7 +313,8 @@ class FlexibleJointArm(Diagram):
     q_link,i = q_motor,i + δ_i.
 
     The set-point (see :class:`CommandInterpolator`): a new command u starts a ramp at t₀,
-    the command's ``command_time`` if connected, else the poll that sees it (1 ms polls),
+    the command's ``command_time`` if connected, else the poll that sees it (polls every
+    ``command_period_s`` or 10 ms, 0.1 ms after each multiple),
     from the set-point q₀ = q_d(t₀):
 
         "linear": q_d(t) = q₀ + clip((t − t₀)/T, 0, 1)·(u − q₀),
@@ -327,11 +334,17 @@ class FlexibleJointArm(Diagram):
     contact.
     """
 
-    def __init__(self, config: FlexibleArmConfig = FlexibleArmConfig()):
+    def __init__(self, config: FlexibleArmConfig = FlexibleArmConfig(), *,
+                 command_period_s: float | None = None):
         """Builds the diagram.
 
         Args:
             config: The arm, plant step, gravity, initial pose and sub-system settings.
+            command_period_s: The period at which ``q_commanded`` can change, s, if the
+                diagram that drives the robot knows it (the uplink's 0.25 s when it drives
+                the robot directly): the interpolator then polls at it, 0.1 ms after each
+                change, instead of every 10 ms (unless ``config.interpolator.poll_period_s``
+                says otherwise). None: 10 ms, the onboard receiver's rate.
 
         Raises:
             ValueError: if ``config`` is not a FlexibleArmConfig. Invalid field values are
@@ -371,7 +384,8 @@ class FlexibleJointArm(Diagram):
         interpolator = builder.AddNamedSystem("command_interpolator", CommandInterpolator(
             config.interpolator, joint_names=arm.joint_names, lower_rad=arm.joint_lower_rad,
             upper_rad=arm.joint_upper_rad, initial_position_rad=q0,
-            lead_s=config.time_step_s))
+            lead_s=config.time_step_s, continuous_diagram=config.time_step_s == 0.0,
+            command_period_s=command_period_s))
         # Joint order → actuator order for the plant's PD (desired-state input).
         to_actuator_order = builder.AddNamedSystem(
             "desired_state_to_actuator_order",

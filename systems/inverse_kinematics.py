@@ -31,9 +31,10 @@ from telesmooth.arms.description import ArmDescription
 from telesmooth.arms.joint_vectors import check_joint_vector
 from telesmooth.arms.planar import (
     PlanarArm,
-    planar_3r_inverse_kinematics,
+    planar_3r_inverse_kinematics_point,
     planar_end_effector_angle,
     planar_forward_kinematics,
+    planar_pose_point,
 )
 from telesmooth.arms.space_arm_ik import (
     SpaceArmIkStatus,
@@ -121,6 +122,12 @@ class IkStatus(enum.IntEnum):
     """The target would jump by more than ``max_joint_step_rad`` in some joint: held."""
     SOLVER_ERROR = 6
     """The numerical solver raised: held."""
+
+
+_SOLVE_OUTCOMES = frozenset(float(status) for status in (
+    IkStatus.OK, IkStatus.UNREACHABLE, IkStatus.JOINT_LIMIT, IkStatus.JOINT_STEP,
+    IkStatus.SOLVER_ERROR))
+"""The statuses an IK solve of ``pose_commanded`` can end with (not DISENGAGED/INVALID)."""
 
 
 def planar_arm_from_description(arm: ArmDescription) -> PlanarArm:
@@ -248,9 +255,13 @@ class InverseKinematicsSystem(LeafSystem):
         else:
             if e_{k-1} = 0:       offset ← clutch_offset(FK(q), u)   (re-index, no jump)
             pose_cmd = apply_clutch_offset(u, offset)
-            q' = IK(pose_cmd, seed q)
-            accept q ← q' iff IK succeeded, q' within limits, |q' − q|_∞ <= max_joint_step_rad
-            and the residual is within the tolerances; otherwise hold q and fail with the reason
+            if e_{k-1} = 1 and pose_cmd equals the last solved pose_commanded (bit for bit):
+                                  q and the status unchanged (the same solve again)
+            else:
+                q' = IK(pose_cmd, seed q)
+                accept q ← q' iff IK succeeded, q' within limits, |q' − q|_∞ <=
+                max_joint_step_rad and the residual is within the tolerances; otherwise hold
+                q and fail with the reason
             e ← 1
 
     Clutch offset (planar: additive in x, y and phi; 6-DOF: additive position, rotation
@@ -397,18 +408,20 @@ class InverseKinematicsSystem(LeafSystem):
         """(q, status): the IK answer for ``pose_commanded`` seeded with ``q_previous``."""
         config = self._config
         if self._planar:
-            q, reachable = planar_3r_inverse_kinematics(
-                pose_commanded[:2], pose_commanded[2], self._planar_arm, elbow=config.elbow
-            )
-            within_limits = bool(np.all((q >= self._lower) & (q <= self._upper)))
+            # One pose in plain floats (the scalar twin of planar_3r_inverse_kinematics:
+            # numpy's overhead on three numbers cost ~170 µs per call).
+            x, y, phi = (float(v) for v in pose_commanded)
+            angles, reachable = planar_3r_inverse_kinematics_point(
+                x, y, phi, self._planar_arm, elbow=config.elbow)
+            q = np.array(angles)
+            within_limits = all(self._lower[i] <= angles[i] <= self._upper[i]
+                                for i in range(3))
             if not reachable:
                 return q, IkStatus.UNREACHABLE if within_limits else IkStatus.JOINT_LIMIT
             # Belt and braces: the closed form is exact, so this residual is ~1e-16.
-            position_m = float(np.linalg.norm(
-                planar_forward_kinematics(q, self._planar_arm.link_lengths_m)
-                - pose_commanded[:2]))
-            angle = float(planar_end_effector_angle(q)) - pose_commanded[2]
-            orientation_rad = abs(math.remainder(angle, 2.0 * math.pi))
+            x_q, y_q, phi_q = planar_pose_point(angles, self._planar_arm.link_lengths_m)
+            position_m = math.hypot(x_q - x, y_q - y)
+            orientation_rad = abs(math.remainder(phi_q - phi, 2.0 * math.pi))
         else:
             try:
                 result = solve_space_arm_ik(
@@ -435,49 +448,63 @@ class InverseKinematicsSystem(LeafSystem):
         if not (position_m <= config.position_tolerance_m
                 and orientation_rad <= config.orientation_tolerance_rad):
             return q, IkStatus.UNREACHABLE
-        if not np.max(np.abs(q - q_previous)) <= config.max_joint_step_rad:
-            return q, IkStatus.JOINT_STEP
+        step = config.max_joint_step_rad
+        if not all(abs(float(a) - float(b)) <= step for a, b in zip(q, q_previous)):
+            return q, IkStatus.JOINT_STEP      # (a NaN fails the comparison too)
         return q, IkStatus.OK
 
     def _update(self, context, discrete_state) -> None:
-        q = context.get_discrete_state(self._q_state).get_value().copy()
-        offset = context.get_discrete_state(self._offset_state).get_value().copy()
+        # Drake hands this update the current state: only the groups that change are
+        # written (every Drake call costs a few µs at 100 Hz; see the issue-20 bench).
+        q = context.get_discrete_state(self._q_state).get_value()
         previous_enable = context.get_discrete_state(self._previous_enable_state).get_value()[0]
-        pose_commanded = context.get_discrete_state(self._pose_commanded_state).get_value().copy()
-
         enable = self._enable_input.Eval(context)[0] if self._enable_input.HasValue(context) \
             else 1.0
         pose = (self._pose_desired_input.Eval(context)
                 if self._pose_desired_input.HasValue(context) else None)
         engaged_next = previous_enable
+        q_new = pose_commanded = offset = None
         if not math.isfinite(enable):
             status, engaged_next = IkStatus.INVALID_INPUT, 0.0
         elif enable <= 0.5:
             status, engaged_next = IkStatus.DISENGAGED, 0.0
-        elif pose is None or not np.all(np.isfinite(pose)):
+        elif pose is None or not all(map(math.isfinite, pose)):
             status = IkStatus.INVALID_INPUT
         else:
+            offset = context.get_discrete_state(self._offset_state).get_value()
             if previous_enable <= 0.5:
                 # Re-index: the command continues from the held target's pose.
                 offset = clutch_offset(
                     self.forward_kinematics_pose(q), pose, planar=self._planar)
             command = apply_clutch_offset(pose, offset, planar=self._planar)
-            if np.all(np.isfinite(command)):
+            last_status = context.get_discrete_state(self._status_state).get_value()[0]
+            if (previous_enable > 0.5 and last_status in _SOLVE_OUTCOMES
+                    and np.array_equal(command, context.get_discrete_state(
+                        self._pose_commanded_state).get_value())):
+                # The command the last update solved, from the target it held or set: the
+                # answer would be the same, so it is not computed again (an operator who
+                # holds still costs nothing).
+                status = IkStatus(int(last_status))
+            elif all(map(math.isfinite, command)):
                 pose_commanded = command
-                q_new, status = self._solve(command, q)
-                if status == IkStatus.OK and np.all(np.isfinite(q_new)):
-                    q = q_new
+                solution, status = self._solve(command, q)
+                if status == IkStatus.OK and all(map(math.isfinite, solution)):
+                    q_new = solution
             else:  # cannot happen for finite inputs; hold rather than trust it
                 status = IkStatus.INVALID_INPUT
             engaged_next = 1.0
 
-        discrete_state.get_mutable_vector(self._q_state).SetFromVector(q)
-        discrete_state.get_mutable_vector(self._offset_state).SetFromVector(offset)
-        discrete_state.get_mutable_vector(self._previous_enable_state).SetFromVector(
-            [engaged_next])
-        discrete_state.get_mutable_vector(self._status_state).SetFromVector([float(status)])
-        discrete_state.get_mutable_vector(self._pose_commanded_state).SetFromVector(
-            pose_commanded)
+        if q_new is not None:
+            discrete_state.get_mutable_vector(self._q_state).SetFromVector(q_new)
+        if offset is not None and previous_enable <= 0.5:
+            discrete_state.get_mutable_vector(self._offset_state).SetFromVector(offset)
+        if engaged_next != previous_enable:
+            discrete_state.get_mutable_vector(self._previous_enable_state).SetAtIndex(
+                0, engaged_next)
+        discrete_state.get_mutable_vector(self._status_state).SetAtIndex(0, float(status))
+        if pose_commanded is not None:
+            discrete_state.get_mutable_vector(self._pose_commanded_state).SetFromVector(
+                pose_commanded)
 
     def _calc_ik_failed(self, context, output) -> None:
         status = IkStatus(int(context.get_discrete_state(self._status_state).get_value()[0]))

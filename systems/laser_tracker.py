@@ -137,8 +137,8 @@ class LaserTracker(LeafSystem):
     state is the sample of the plant's *default* positions at t = 0; an initialization
     event re-samples the actual initial state when the simulation starts.
 
-    Forward kinematics uses a scratch plant context kept on ``self``; it is fully
-    overwritten (positions and velocities) before every use, so it carries no state.
+    Forward kinematics uses a scratch plant context kept on ``self``; its positions are
+    overwritten before every use and its velocities never read, so it carries no state.
     """
 
     def __init__(
@@ -190,6 +190,8 @@ class LaserTracker(LeafSystem):
         self._motor_index = np.array(motor_index)
         self._deflection_index = np.array(deflection_index)
         self._tool_frame = plant.GetFrameByName(tool_frame_name, model_instance)
+        self._world_frame = plant.world_frame()
+        self._tool_origin = np.zeros((3, 1))
         self._plant_context = plant.CreateDefaultContext()
 
         self._plant_state_input = self.DeclareVectorInputPort(
@@ -264,18 +266,23 @@ class LaserTracker(LeafSystem):
 
     def _sample(self, plant_state, time_s) -> np.ndarray:
         """[t_k, p_WT (3), q_link (n), q_motor (n)] of a plant state sampled at ``time_s``."""
+        n = self._motor_index.size
         positions = np.asarray(plant_state)[: self._num_positions]
-        q_motor = positions[self._motor_index]
-        q_link = q_motor + positions[self._deflection_index]
-        self._plant.SetPositionsAndVelocities(self._plant_context, plant_state)
-        position = self._plant.CalcPointsPositions(
-            self._plant_context, self._tool_frame, np.zeros((3, 1)),
-            self._plant.world_frame())[:, 0]
+        sample = np.empty(4 + 2 * n)
+        sample[0] = time_s
+        q_motor = sample[4 + n:]
+        q_motor[:] = positions[self._motor_index]
+        np.add(q_motor, positions[self._deflection_index], out=sample[4:4 + n])   # q_link
+        # The tool point depends on the positions only (the scratch context's velocities
+        # are never read).
+        self._plant.SetPositions(self._plant_context, positions)
+        sample[1:4] = self._plant.CalcPointsPositions(
+            self._plant_context, self._tool_frame, self._tool_origin, self._world_frame)[:, 0]
         if self._config.noise_m > 0.0:
             k = int(round(time_s / self._config.period_s))
             rng = np.random.default_rng([self._config.seed, k])
-            position = position + self._config.noise_m * rng.standard_normal(3)
-        return np.concatenate([[time_s], position, q_link, q_motor])
+            sample[1:4] += self._config.noise_m * rng.standard_normal(3)
+        return sample
 
     def _update_sample(self, context, discrete_state) -> None:
         discrete_state.get_mutable_vector(self._measurement_state).SetFromVector(self._sample(

@@ -302,13 +302,20 @@ def test_a_regularised_step_that_fails_twice_in_one_iteration_falls_back_to_qr()
 
 @pytest.mark.parametrize("chunk_rows", [1, 3, 7, 1 << 15])
 def test_band_helpers_against_dense_matrices(monkeypatch, chunk_rows):
-    """_band_of (in chunks of rows, duplicates summed), _half_bandwidth and _max_step against
-    dense / brute-force computations."""
+    """_gram_band (the band of AᵀA from A's rows, in chunks of rows, repeated entries of a
+    row summed first), _RepeatingBand, _half_bandwidth and _max_step against dense /
+    brute-force computations."""
     from scipy import sparse
 
     from telesmooth.smoothing import banded_ip
-    from telesmooth.smoothing.banded_ip import _band_of, _half_bandwidth, _max_step
+    from telesmooth.smoothing.banded_ip import (
+        _gram_band,
+        _half_bandwidth,
+        _max_step,
+        _RepeatingBand,
+    )
     monkeypatch.setattr(banded_ip, "_CHUNK_ROWS", chunk_rows)
+    monkeypatch.setattr(banded_ip, "_GRAM_CHUNK_ROWS", chunk_rows)
     rng = np.random.default_rng(5)
     a = sparse.random(30, 20, density=0.0, random_state=1, format="lil")
     for row in range(30):                       # rows spanning at most 6 columns
@@ -320,18 +327,28 @@ def test_band_helpers_against_dense_matrices(monkeypatch, chunk_rows):
     dense = (a.T @ a).toarray()
     rows, cols = np.nonzero(dense)
     assert _half_bandwidth(a, f) == max(int(np.max(np.abs(rows - cols))), 9)
-    band = _band_of(a.T @ a, 7)
+    band = _gram_band(a, 7)
     for offset in range(8):
         np.testing.assert_allclose(band[: 20 - offset, offset], np.diag(dense, -offset),
-                                   rtol=1e-15, atol=1e-15)
+                                   rtol=1e-14, atol=1e-14)
         np.testing.assert_array_equal(band[20 - offset:, offset], 0.0)
-    # A CSR with a duplicate entry (row 3, column 3 twice): the two are added.
-    duplicated = sparse.csr_matrix(([1.0, 2.0, 8.0, 4.0], [3, 3, 4, 2], [0, 0, 0, 0, 2, 3, 4]),
-                                   shape=(6, 6))
+    # A CSR row repeating a column (row 1: column 3 twice, then column 4): MᵀM of the sum.
+    duplicated = sparse.csr_matrix(([1.0, 2.0, 8.0, 4.0], [3, 3, 4, 2], [0, 0, 3, 4]),
+                                   shape=(3, 6))
     assert not duplicated.has_canonical_format
-    twice = _band_of(duplicated, 3)
-    assert twice[3, 0] == 3.0 and twice[2, 3] == 4.0 and twice[4, 0] == 8.0
-    assert np.count_nonzero(twice) == 3
+    gram = (sparse.csr_matrix(duplicated.toarray()).T @ duplicated.toarray())
+    twice = _gram_band(duplicated, 3)
+    for offset in range(4):
+        np.testing.assert_array_equal(twice[: 6 - offset, offset], np.diag(gram, -offset))
+    assert twice[3, 0] == 9.0 and twice[3, 1] == 24.0 and twice[2, 0] == 16.0
+    # The repeating-block storage gives the band back exactly, whatever repeats.
+    periodic = np.tile(rng.standard_normal((4, 5)), (30, 1))
+    periodic[:4] += 1.0
+    periodic[-8:-5] -= 2.0
+    for full in (periodic, rng.standard_normal((120, 5)), rng.standard_normal((6, 5))):
+        stored = _RepeatingBand(full)
+        np.testing.assert_array_equal(stored.expand(np.empty_like(full)), full)
+    assert _RepeatingBand(periodic).rows.tolist() == [0, 28]
     values = (rng.uniform(0.1, 1.0, 50), rng.uniform(0.1, 1.0, 7))
     steps = (rng.standard_normal(50), np.abs(rng.standard_normal(7)))
     brute = min(-v / d for vs, ds in zip(values, steps) for v, d in zip(vs, ds) if d < 0)

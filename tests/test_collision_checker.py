@@ -224,3 +224,32 @@ def test_lasa_angle_demo_0_never_trips_the_checker():
     assert np.all(detected == 0.0)
     # Same minimum as the direct query over the session (test_arm_collision), 0.1720 m.
     assert distances.min() == pytest.approx(0.1720, abs=5e-4)
+
+
+# --- a target that did not change is not queried again ---
+
+
+def test_an_unchanged_target_reuses_the_last_distance_and_still_fills_the_latch():
+    """Oracle: the update equations evaluated by hand with a query at every sample (the
+    query is a pure function of q): same outputs at every sample; the model is queried only
+    when the target changes, and again after an invalid target."""
+    dut = _checker(latch_s=0.05)
+    oracle_model = _checker().collision_model
+    margin, window = dut.config.safety_margin_m, dut.latch_samples
+    queries = []
+    query = dut.collision_model.query
+    dut.collision_model.query = lambda q: queries.append(q.copy()) or query(q)
+    context = dut.CreateDefaultContext()
+    sequence = [FREE_Q] * 3 + [COLLIDING_Q] * 8 + [FREE_Q] * 2 + [np.array([np.nan, 0, 0])] \
+        + [FREE_Q] * 7
+    flags = []
+    for q in sequence:
+        dut.get_q_target_input_port().FixValue(context, q)
+        _update(dut, context)
+        distance = oracle_model.query(q).min_distance_m if np.all(np.isfinite(q)) else 0.0
+        flags.append(float(distance < margin) if np.all(np.isfinite(q)) else 1.0)
+        assert _outputs(dut, context) == (distance, flags[-1], max(flags[-window:]))
+    assert 0.0 in flags and 1.0 in flags
+    # Queried at the first sample of each run of equal valid targets only.
+    assert len(queries) == 4
+    np.testing.assert_array_equal(queries, [FREE_Q, COLLIDING_Q, FREE_Q, FREE_Q])

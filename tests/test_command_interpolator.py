@@ -1,5 +1,7 @@
 """CommandInterpolator: closed-form ramp/step set-points, command rejection (hold + flag),
-recovery, port contract, and validation messages."""
+recovery, port contract, and validation messages; the set-point evaluated by Drake
+(RampSetPoint) against the pure ramp_desired_state; the default poll (10 ms, 0.1 ms after the
+10 ms grid); a continuous plant's diagram."""
 
 import logging
 import math
@@ -11,6 +13,7 @@ from pydrake.systems.analysis import Simulator
 from telesmooth.systems.command_interpolator import (
     CommandInterpolator,
     CommandInterpolatorConfig,
+    RampSetPoint,
     command_violation,
     ramp_desired_state,
 )
@@ -26,7 +29,8 @@ ATOL = 1e-12
 
 def make_dut(interpolation="linear", initial_position_rad=Q0):
     return CommandInterpolator(
-        CommandInterpolatorConfig(interpolation=interpolation),
+        CommandInterpolatorConfig(interpolation=interpolation, poll_period_s=POLL,
+                                  poll_offset_s=0.0),
         joint_names=NAMES, lower_rad=LOWER, upper_rad=UPPER,
         initial_position_rad=initial_position_rad)
 
@@ -310,8 +314,11 @@ def test_set_hold_position_validates_and_holds():
 
 def test_default_config_is_valid():
     config = CommandInterpolatorConfig()
-    assert (config.interpolation, config.ramp_duration_s, config.poll_period_s) == (
-        "linear", 0.25, 0.001)
+    assert (config.interpolation, config.ramp_duration_s, config.poll_period_s,
+            config.poll_offset_s) == ("linear", 0.25, None, 1e-4)
+    assert config.poll_timing(None) == (0.01, 1e-4)          # the receiver's rate
+    assert config.poll_timing(0.25) == (0.25, 1e-4)          # the uplink's, if known
+    assert CommandInterpolatorConfig(poll_period_s=0.002).poll_timing(0.25) == (0.002, 1e-4)
 
 
 @pytest.mark.parametrize("kwargs,match", [
@@ -320,6 +327,12 @@ def test_default_config_is_valid():
     ({"ramp_duration_s": -0.25}, r"ramp_duration_s = -0.25 must be positive"),
     ({"poll_period_s": float("nan")}, r"CommandInterpolatorConfig.poll_period_s = nan"),
     ({"poll_period_s": "fast"}, r"poll_period_s = 'fast' must be a number"),
+    ({"poll_offset_s": 0.01}, r"poll_offset_s = 0.01 must be a number of seconds in "
+                              r"\[0, poll period = 0.01\)"),
+    ({"poll_period_s": 0.002, "poll_offset_s": 0.003}, r"poll_offset_s = 0.003 must be"),
+    ({"poll_offset_s": -1e-4}, r"poll_offset_s = -0.0001 must be"),
+    ({"poll_offset_s": float("nan")}, r"poll_offset_s = nan must be"),
+    ({"poll_offset_s": "soon"}, r"poll_offset_s = 'soon' must be"),
 ])
 def test_config_errors_name_field_and_value(kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -350,3 +363,106 @@ def test_wrong_command_size_is_refused_by_the_port():
     context = dut.CreateDefaultContext()
     with pytest.raises(Exception, match="size"):
         dut.get_q_commanded_input_port().FixValue(context, np.zeros(3))
+
+
+# -- the set-point evaluated by Drake -----------------------------------------------------
+
+
+@pytest.mark.parametrize("lead_s", [0.0, 0.005])
+def test_ramp_set_point_is_ramp_desired_state_to_the_last_bit(lead_s):
+    """Oracle: the pure function, at random ramps and times before, during, at the ends of
+    and after each ramp (the symbolic evaluator repeats its operations in the same order)."""
+    rng = np.random.default_rng(5)
+    n, period = 3, 0.25
+    dut = RampSetPoint(n, period, lead_s)
+    context = dut.CreateDefaultContext()
+    port = dut.get_input_port()
+    for _ in range(200):
+        start, target = rng.uniform(-2, 2, n), rng.uniform(-2, 2, n)
+        start_time = rng.uniform(0.0, 40.0)
+        port.FixValue(context, np.concatenate([[start_time], start, target]))
+        times = [start_time - lead_s - 0.01, start_time - lead_s,
+                 start_time - lead_s + rng.uniform(0, period), start_time + period - lead_s,
+                 start_time + period - lead_s + 1e-3]
+        for time_s in times:
+            context.SetTime(time_s)
+            q, v = ramp_desired_state(start, target, start_time, period, time_s + lead_s)
+            np.testing.assert_array_equal(dut.get_output_port().Eval(context),
+                                          np.concatenate([q, v]))
+
+
+def test_no_python_runs_when_the_set_point_is_read():
+    """The set-point is the output of the C++ evaluator: reading it at many times calls no
+    Python function (profiled); the Python gate runs only at its polls (one periodic event,
+    10 ms from 0.1 ms). The old design computed it in a Python output callback."""
+    import sys
+
+    dut = CommandInterpolator(CommandInterpolatorConfig(), joint_names=NAMES, lower_rad=LOWER,
+                              upper_rad=UPPER, initial_position_rad=Q0)
+    assert type(dut.GetSubsystemByName("ramp_set_point")).__name__ == "SymbolicVectorSystem"
+    poll = dut.gate.GetUniquePeriodicDiscreteUpdateAttribute()
+    assert (poll.period_sec(), poll.offset_sec()) == (0.01, 1e-4)
+    harness = Harness(dut)
+    harness.hold_from(0.1005, [0.6, 0.8])
+    harness.simulator.AdvanceTo(0.2)              # a ramp in progress
+    context, port = harness.context, dut.get_state_desired_output_port()
+    python_calls = []
+
+    def profile(frame, event, arg):
+        if event == "call":
+            python_calls.append(frame.f_code.co_name)
+
+    values = []
+    times = [float(t) for t in np.linspace(0.2, 0.3, 40)]
+    sys.setprofile(profile)
+    try:
+        for time_s in times:
+            context.SetTime(time_s)
+            values.append(tuple(port.Eval(context)))
+    finally:
+        sys.setprofile(None)
+    assert python_calls == []
+    assert len(set(values)) == 40      # re-evaluated at every time indeed
+
+
+def test_default_poll_sees_a_command_on_the_10_ms_grid_a_tenth_of_a_millisecond_later():
+    dut = CommandInterpolator(CommandInterpolatorConfig(), joint_names=NAMES, lower_rad=LOWER,
+                              upper_rad=UPPER, initial_position_rad=Q0)
+    harness = Harness(dut)
+    a = np.array([0.6, 0.8])
+    harness.hold_from(0.25, a)                  # as the uplink's tick at 0.25 s would
+    q, _ = harness.desired_at(0.25005)           # before the poll at 0.2501 s
+    np.testing.assert_array_equal(q, Q0)
+    q, v = harness.desired_at(0.2502)
+    assert harness.dut.get_ramp(harness.context)[2] == pytest.approx(0.2501, abs=1e-12)
+    np.testing.assert_allclose(q, Q0 + 0.0001 / RAMP * (a - Q0), atol=1e-12, rtol=0)
+    np.testing.assert_allclose(v, (a - Q0) / RAMP, atol=1e-12, rtol=0)
+
+
+def test_works_in_a_diagram_with_continuous_state():
+    """A continuous plant's diagram integrates; the evaluator then needs a state of its own
+    (drake 1.51's SymbolicVectorSystem aborts when asked for derivatives without one)."""
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import Integrator
+
+    builder = DiagramBuilder()
+    dut = builder.AddSystem(CommandInterpolator(
+        CommandInterpolatorConfig(), joint_names=NAMES, lower_rad=LOWER, upper_rad=UPPER,
+        initial_position_rad=Q0, continuous_diagram=True))
+    integrator = builder.AddSystem(Integrator(4))   # integrates the set-point: q_d and v_d
+    builder.Connect(dut.get_state_desired_output_port(), integrator.get_input_port())
+    builder.ExportInput(dut.get_q_commanded_input_port())
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    simulator.get_mutable_integrator().set_target_accuracy(1e-9)
+    context = simulator.get_mutable_context()
+    a = np.array([0.6, 0.8])
+    diagram.get_input_port().FixValue(context, a)
+    simulator.AdvanceTo(1.0)
+    # The poll at 0.1 ms starts a ramp reaching a at 0.2501 s: ∫q_d dt over [0, 1] s.
+    t0 = 1e-4
+    expected = Q0 * t0 + (Q0 + a) / 2 * RAMP + a * (1.0 - t0 - RAMP)
+    state = integrator.GetMyContextFromRoot(context).get_continuous_state_vector().CopyToVector()
+    # The integrator steps across the jumps of v_d at the ramp's end (not an event time).
+    np.testing.assert_allclose(state[:2], expected, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(state[2:], a - Q0, rtol=0, atol=1e-6)   # ∫v_d = the travel

@@ -182,7 +182,7 @@ def test_ports_and_plant_structure_air_bearing():
                      "tracker_sample_time": 1, "tracker_measurement": 10,
                      "command_rejected": 1, "state_desired": 6, "plant_state": 12}
     plant = dut.plant
-    assert plant.time_step() == 1e-3
+    assert plant.time_step() == 0.0   # continuous by default
     assert plant.num_positions() == 6 and plant.num_actuators() == 3
     np.testing.assert_array_equal(plant.gravity_field().gravity_vector(), [0, 0, 0])
     for joint in AIR_BEARING_ARM_3DOF.joints:  # the servo gains come from the description
@@ -242,7 +242,7 @@ def test_set_initial_positions_puts_the_arm_at_rest():
 def test_default_config_is_valid_and_builds():
     config = FlexibleArmConfig()
     assert (config.arm, config.time_step_s, config.gravity_m_per_s2) == (
-        "air_bearing_arm", 1e-3, (0.0, 0.0, 0.0))
+        "air_bearing_arm", 0.0, (0.0, 0.0, 0.0))
     assert FlexibleJointArm(config).num_joints == 3
 
 
@@ -436,9 +436,10 @@ def test_unsafe_commands_hold_the_robot_and_raise_the_flag():
     port.FixValue(context, [0.06, 0.0, 0.0])  # a valid command: recovery
     simulator.AdvanceTo(1.6)
     assert flag.Eval(context)[0] == 0.0
-    # 0.1 s into the 0.25 s ramp from 0.05 to 0.06, given one plant step (1 ms) ahead.
+    # The poll 0.1 ms after 1.5 s starts the 0.25 s ramp from 0.05 to 0.06 (no lead: the
+    # plant is continuous).
     assert dut.GetOutputPort("state_desired").Eval(context)[0] == pytest.approx(
-        0.05 + (0.1 + 0.001) / 0.25 * 0.01, abs=1e-12)
+        0.05 + (0.1 - 0.0001) / 0.25 * 0.01, abs=1e-12)
     assert dut.interpolator.get_rejected_command_count(
         dut.interpolator.GetMyContextFromRoot(context)) == 2
 
@@ -493,3 +494,34 @@ def test_continuous_plant_agrees_with_the_discrete_one():
         results[step] = logs["q_link"].data()[:, -1]
     # Measured difference 1.4e-5 rad (drake 1.51.1, RK3 at the default accuracy).
     np.testing.assert_allclose(results[0.0], results[1e-3], atol=1e-4, rtol=0)
+
+
+# -- the interpolator polls when the command can change -----------------------------------
+
+
+def test_the_interpolator_polls_at_the_command_period_when_the_diagram_knows_it():
+    """Driven by commands that change only every 0.25 s, polling every 0.25 s (0.1 ms after
+    each change) sees every command at the same instant as polling every 10 ms does: the
+    same set-point and the same motion (to the integrator's accuracy: its steps differ)."""
+    times = np.arange(0.0, 2.01, UPLINK_PERIOD_S)
+    commands = np.vstack([0.3 * np.sin(times), -0.2 * times / 2.0, 0.1 * np.cos(times)])
+    results = {}
+    for period in (None, UPLINK_PERIOD_S):
+        builder = DiagramBuilder()
+        dut = builder.AddNamedSystem("arm", FlexibleJointArm(
+            FlexibleArmConfig(), command_period_s=period))
+        poll = dut.interpolator.gate.GetUniquePeriodicDiscreteUpdateAttribute()
+        assert (poll.period_sec(), poll.offset_sec()) == (period or 0.01, 1e-4)
+        source = builder.AddNamedSystem("uplink", held_commands(times, commands))
+        builder.Connect(source.get_output_port(), dut.GetInputPort("q_commanded"))
+        desired = LogVectorOutput(dut.GetOutputPort("state_desired"), builder, 0.01)
+        tracker = LogVectorOutput(dut.GetOutputPort("tracker_measurement"), builder, 0.01)
+        simulator = Simulator(builder.Build())
+        simulator.AdvanceTo(2.5)
+        root = simulator.get_context()
+        results[period] = (desired.FindLog(root).data(), tracker.FindLog(root).data())
+    np.testing.assert_array_equal(results[None][0], results[UPLINK_PERIOD_S][0])
+    # Measured 2.4e-7 rad / m (the error control at drake's default accuracy 1e-4).
+    np.testing.assert_allclose(results[None][1], results[UPLINK_PERIOD_S][1], rtol=0,
+                               atol=2e-6)
+    assert np.ptp(results[None][1][4:7], axis=1).max() > 0.1     # the arm moved

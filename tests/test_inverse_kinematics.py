@@ -506,3 +506,41 @@ def test_lasa_session_through_the_simulated_system_has_one_sample_of_latency():
     # A log at t_k sees the state before the update at t_k: the target of sample k - 1.
     np.testing.assert_allclose(q[1:], session.q_rad[:-1], rtol=0, atol=1e-12)
     np.testing.assert_array_equal(q[0], session.q_rad[0])
+
+
+# --- a held command is not solved again ---
+
+
+@pytest.mark.parametrize("make, pose_size", [(_planar, 3), (_space, 6)], ids=["planar", "space"])
+def test_a_repeated_command_is_not_solved_again_and_changes_nothing(make, pose_size, kinematics):
+    """The same command as the last solved one, from the target that solve held or set: the
+    answer would be the same, so the solver is not called (counted), and target and status
+    stay. After anything that is not a solve outcome (invalid input, a released clutch) the
+    same command is solved again."""
+    harness = make()
+    calls = []
+    solve = harness.dut._solve
+    harness.dut._solve = lambda *args: calls.append(1) or solve(*args)
+    q0 = Q0_PLANAR if pose_size == 3 else Q0_SPACE
+    reachable = (_planar_pose(q0 + 0.01) if pose_size == 3
+                 else kinematics.tool_pose(q0 + 0.01))
+    unreachable = np.array([5.0, 0.0, 0.0]) if pose_size == 3 else np.r_[5.0, np.zeros(5)]
+    harness.step(reachable, enable=1.0)
+    q, status = harness.q, harness.status
+    assert status == IkStatus.OK and len(calls) == 1
+    for _ in range(5):
+        harness.step(reachable)
+    assert len(calls) == 1 and harness.status == IkStatus.OK
+    np.testing.assert_array_equal(harness.q, q)
+    harness.step(unreachable)
+    harness.step(unreachable)                 # the failure is kept, not recomputed
+    assert len(calls) == 2 and harness.status == IkStatus.UNREACHABLE and harness.failed == 1.0
+    np.testing.assert_array_equal(harness.q, q)
+    harness.step(np.full(pose_size, np.nan))   # invalid input: not a solve outcome
+    harness.step(unreachable)
+    assert len(calls) == 3 and harness.status == IkStatus.UNREACHABLE
+    harness.step(reachable)
+    assert len(calls) == 4 and harness.status == IkStatus.OK
+    harness.step(reachable, enable=0.0)       # released, then re-engaged: re-indexed, solved
+    harness.step(reachable, enable=1.0)
+    assert len(calls) == 5 and harness.status == IkStatus.OK

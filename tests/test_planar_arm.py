@@ -10,8 +10,10 @@ from telesmooth.arms.planar import (
     AIR_BEARING_LINK_LENGTHS_M,
     PlanarArm,
     planar_3r_inverse_kinematics,
+    planar_3r_inverse_kinematics_point,
     planar_end_effector_angle,
     planar_forward_kinematics,
+    planar_pose_point,
 )
 
 LENGTHS = AIR_BEARING_LINK_LENGTHS_M  # (0.5, 0.4, 0.2) m
@@ -308,3 +310,56 @@ def test_planar_arm_normalises_to_tuples_and_allows_infinite_limits():
     assert dut == same and hash(dut) == hash(same)
     with pytest.raises(AttributeError):
         dut.link_lengths_m = (1.0, 1.0, 1.0)
+
+
+# --- one target at a time (the 100 Hz ground-station path) ---
+
+
+@pytest.mark.parametrize("elbow", [1, -1])
+@pytest.mark.parametrize("arm", [
+    AIR_BEARING_ARM,
+    PlanarArm(link_lengths_m=(0.3, 0.7, 0.1), joint_names=("a", "b", "c"),
+              joint_lower_rad=(-1.0, -math.inf, -2.0), joint_upper_rad=(1.5, math.inf, 0.5)),
+])
+def test_point_inverse_kinematics_equals_the_vectorised_one(elbow, arm):
+    """Oracle: the vectorised function, on targets reachable, outside the annulus (both
+    sides), on its boundary and violating limits; joint angles to 1e-12 rad (numpy's and
+    libm's trigonometric functions may round differently), the flag exactly."""
+    rng = np.random.default_rng(11)
+    reach = sum(arm.link_lengths_m)
+    targets = [(float(x), float(y), float(phi)) for x, y, phi in zip(
+        rng.uniform(-1.2 * reach, 1.2 * reach, 400), rng.uniform(-1.2 * reach, 1.2 * reach, 400),
+        rng.uniform(-7.0, 7.0, 400))]
+    targets += [(reach, 0.0, 0.0), (0.0, 0.0, 0.0), (-0.1, 0.05, 3.0)]
+    flags = set()
+    for x, y, phi in targets:
+        q_vector, reachable_vector = planar_3r_inverse_kinematics(
+            np.array([x, y]), phi, arm, elbow=elbow)
+        q_point, reachable_point = planar_3r_inverse_kinematics_point(x, y, phi, arm,
+                                                                      elbow=elbow)
+        assert reachable_point == bool(reachable_vector)
+        np.testing.assert_allclose(q_point, q_vector, rtol=0, atol=1e-12)
+        flags.add(reachable_point)
+    assert flags == {True, False}          # both cases were exercised
+
+
+def test_point_inverse_kinematics_validation():
+    with pytest.raises(ValueError, match=r"must be finite"):
+        planar_3r_inverse_kinematics_point(0.5, math.nan, 0.0, AIR_BEARING_ARM)
+    with pytest.raises(ValueError, match=r"elbow = 0 must be"):
+        planar_3r_inverse_kinematics_point(0.5, 0.1, 0.0, AIR_BEARING_ARM, elbow=0)
+    two_link = PlanarArm(link_lengths_m=(1.0, 1.0), joint_names=("a", "b"),
+                         joint_lower_rad=(-1.0, -1.0), joint_upper_rad=(1.0, 1.0))
+    with pytest.raises(ValueError, match=r"needs exactly 3 joints"):
+        planar_3r_inverse_kinematics_point(0.5, 0.1, 0.0, two_link)
+
+
+def test_pose_point_is_forward_kinematics_and_angle():
+    rng = np.random.default_rng(2)
+    for q in rng.uniform(-3.0, 3.0, (100, 3)):
+        x, y, phi = planar_pose_point(q, LENGTHS)
+        np.testing.assert_allclose([x, y], planar_forward_kinematics(q, LENGTHS),
+                                   rtol=0, atol=1e-14)
+        assert phi == planar_end_effector_angle(q)
+    with pytest.raises(ValueError):
+        planar_pose_point([0.1, 0.2], LENGTHS)     # one angle per link

@@ -7,6 +7,7 @@ inertias computed by hand from the description; and the simulated plant ringing 
 predicted damped frequency.
 """
 
+import dataclasses
 import math
 
 import numpy as np
@@ -207,9 +208,12 @@ def test_the_report_states_the_plant_and_its_modes():
     np.testing.assert_array_equal(summary["modes"]["natural_frequency_hz"],
                                   expected.natural_frequency_hz[:3])
     text = plant_text(summary)
-    assert "`lightweight`" in text and "1 ms steps" in text
+    assert "`lightweight`" in text and "(continuous)" in text     # the default plant
     assert f"{expected.lowest_ringing()[0]:.3g} Hz" in text
     assert summary["modes"]["lowest_ringing_hz"] == expected.lowest_ringing()[0]
+    stepped = dataclasses.replace(scenario, onboard=dataclasses.replace(
+        scenario.onboard, time_step_s=0.001))
+    assert "(1 ms steps)" in plant_text(plant_summary(stepped, _start_pose(scenario)))
 
 
 def test_servo_modes_are_told_apart_from_the_ringing_ones():
