@@ -1,6 +1,6 @@
 """The paper's Table 2 for one scenario: every smoothing method through the same plant.
 
-Pipeline (SPEC §6/§7):
+Pipeline (docs/method.md §6/§7):
 
     recorded operator session ─▶ ground-station IK ─▶ one joint sample z_k per uplink tick
       (exactly what the online chain's FIFO samples; :func:`joint_targets_at_uplink_rate`),
@@ -22,7 +22,7 @@ Metrics per method (index i = operator sample, 0 ≤ i < N):
 * ``fd_acceleration`` / ``fd_jerk``: finite differences of the packet sequence *as the plant
   receives it* (start pose ×3 in front, last packet ×3 after) against a_max / j_max.
 * ``position_deformation_rad``, ``velocity_deformation_rad_per_s``, ``cartesian_deformation_m``:
-  estimate of sample i against z_i (SPEC §6 Def_q, E_def).
+  estimate of sample i against z_i (docs/method.md §6 Def_q, E_def).
 * e(i) = ‖FK(q̂_i) − x^A(t_{i+d} + ramp)‖: the robot's response to the packet carrying sample i,
   with the tracker read when the interpolator has reached that packet (the tracker sample
   taken at that instant; with a zero-order hold, at the end of the packet's hold:
@@ -42,7 +42,7 @@ Metrics per method (index i = operator sample, 0 ≤ i < N):
   margin, joint limits). The comparison is a simulation, so they are reported, not enforced.
 
 Method names are those of ``smooth_recording``, plus ``offline-cks-trajectory``: Offline-CKS
-with hard finite-difference limits and rest at the end (SPEC §2.6; the offline mode's default).
+with hard finite-difference limits and rest at the end (docs/method.md §2.6; the offline mode's default).
 Plain ``offline-cks`` is the paper's state box without a terminal constraint.
 """
 

@@ -1,6 +1,6 @@
 """The offline mode: plan a recorded session with Offline-CKS, validate it, then play it back.
 
-Pipeline (SPEC §2.5/§2.6 for the smoother, §5.1 for the 4 Hz sampling):
+Pipeline (docs/method.md §2.5/§2.6 for the smoother, §5.1 for the 4 Hz sampling):
 
     recorded operator session (make_haptic_recording)
       └─▶ inverse kinematics at the haptic rate (the ground station's own IK system)
@@ -376,7 +376,7 @@ def plan_offline(scenario: Scenario, *, constraint: str = "trajectory", max_velo
     t_s, z, q_start, ik_failures = joint_targets_at_uplink_rate(scenario, num_ticks=num_ticks)
     after_ik = time.perf_counter()
 
-    # Stage 2: Offline-CKS over the whole session (SPEC §2.5/§2.6).
+    # Stage 2: Offline-CKS over the whole session (docs/method.md §2.5/§2.6).
     smoother = scenario_smoother_config(scenario)
     model = JerkModel.make(scenario.uplink.period_s, smoother.sigma, smoother.r, num_joints=n,
                            joint_names=names)

@@ -4,7 +4,7 @@
 in chunks (reporting progress), and returns a :class:`SimulationRecord`: the operator's joint
 targets at 100 Hz, every uplink packet at 4 Hz, the FIFO's raw delayed samples, σ, the
 collision flags, and the robot's telemetry at 100 Hz. :func:`run_metrics` turns a record into
-the SPEC §6 figures.
+the docs/method.md §6 figures.
 """
 
 from __future__ import annotations
@@ -292,7 +292,7 @@ def response_errors(record: SimulationRecord) -> ResponseErrors:
 
 
 def run_metrics(record: SimulationRecord) -> dict:
-    """SPEC §6 figures of a run, JSON-ready.
+    """docs/method.md §6 figures of a run, JSON-ready.
 
     * ``commands``: the sent packets against the operator's joint targets of the same instant
       (the IK target at t_k − delay): FD and state acceleration/jerk against the limits, joint

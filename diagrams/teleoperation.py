@@ -1,6 +1,6 @@
 """Diagram builders: the ground station, the onboard robot, and the whole chain in one process.
 
-Data flow (the paper's Figure 2, SPEC §5.1), ground side at the haptic rate then at 4 Hz:
+Data flow (the paper's Figure 2, docs/method.md §5.1), ground side at the haptic rate then at 4 Hz:
 
     haptic source ─pose, clutch─▶ inverse kinematics ─q_target─┬─▶ collision checker
                                                                 │        (pre-simulator)
@@ -125,7 +125,7 @@ def scenario_smoother_config(scenario: Scenario):
     """The smoother config of ``scenario``, with r divided by M under the period mean."""
     config = scenario.smoother
     if scenario.period_mean:
-        # Averaging M samples of white hand noise divides its variance by M (SPEC §5.1).
+        # Averaging M samples of white hand noise divides its variance by M (docs/method.md §5.1).
         samples = _period_mean_config(scenario).num_samples
         config = dataclasses.replace(config, r=config.r / samples)
     return config

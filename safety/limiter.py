@@ -1,10 +1,10 @@
 """The hard limiter: commands whose finite differences never exceed the limits (pure core).
 
-The online counterpart of the trajectory constraint of SPEC §2.6. At every
+The online counterpart of the trajectory constraint of docs/method.md §2.6. At every
 4 Hz tick k the ground station has the fixed-lag estimate r_k (the BMFLS / Online-CKS output,
-SPEC §3) and must choose the command p_k it sends, with the commands already sent held fixed.
+docs/method.md §3) and must choose the command p_k it sends, with the commands already sent held fixed.
 The finite differences of the *sent* sequence (history p_{−1} = p_{−2} = p_{−3} = q_start, the
-robot at rest, SPEC §2.6)
+robot at rest, docs/method.md §2.6)
 
     v_k = (p_k − p_{k−1}) / Δt
     a_k = (p_k − 2 p_{k−1} + p_{k−2}) / Δt²                          = (v_k − v_{k−1}) / Δt

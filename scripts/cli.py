@@ -162,7 +162,7 @@ def _add_smooth_parser(subparsers) -> None:
     p.add_argument("--link-lengths", type=parse_per_joint, default=None, metavar="L1,L2,…",
                    help="planar link lengths [m]: adds the Cartesian deformation to --metrics")
     p.add_argument("--metrics", type=Path, default=None, metavar="OUT.json",
-                   help="write the SPEC §6 metrics as JSON")
+                   help="write the docs/method.md §6 metrics as JSON")
     p.set_defaults(handler=run_smooth)
 
 

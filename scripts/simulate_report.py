@@ -1,7 +1,7 @@
 """`telesmooth simulate`: run a scenario headless and write the report.
 
 Output folder:
-    metrics.json     SPEC §6 figures of the sent commands and of the robot's response
+    metrics.json     docs/method.md §6 figures of the sent commands and of the robot's response
     commands.csv     every uplink packet: seq, send time, the operator instant it estimates,
                      position and velocity per joint
     telemetry.csv    the robot at 100 Hz: link and motor angles, laser-tracker tool position

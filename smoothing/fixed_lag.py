@@ -1,4 +1,4 @@
-"""Biswas–Mahalanabis fixed-lag smoother (BMFLS), SPEC §3, with an exact fast recursion.
+"""Biswas–Mahalanabis fixed-lag smoother (BMFLS), docs/method.md §3, with an exact fast recursion.
 
 The superstate ``X_k = [x_k; x_{k−1}; …; x_{k−L}]`` holds the FIFO contents as states. A Kalman
 filter on (Φ_BM, H_BM, Q_BM, r) is the whole algorithm; after step k, block i of the
@@ -7,13 +7,13 @@ It equals the RTS estimate of x_{k−L} from z_0 … z_k (tested).
 
 Two exact implementations share one interface (``method=``):
 
-``"superstate"`` (SPEC §3.1)
+``"superstate"`` (docs/method.md §3.1)
     The superstate Kalman filter. Φ_BM is a shift, so the prediction
     ``Φ_BM P Φ_BMᵀ + Q_BM`` is assembled block-wise in O((n(L+1))²) instead of the dense
     O((n(L+1))³) product; the update is a rank-one downdate. Mathematically identical to the
     dense form (tested against it).
 
-``"recursion"`` (SPEC §3.2, R1 in a-posteriori form; default)
+``"recursion"`` (docs/method.md §3.2, R1 in a-posteriori form; default)
     Keeps the smoothed blocks x̂_{k−i|k} and the cross covariances
     ``C_k^{(i)} = E[e_{k−i|k} e_{k|k}ᵀ]`` (C^{(0)} = P_{k|k}). One step with measurement z:
 
@@ -28,7 +28,7 @@ Two exact implementations share one interface (``method=``):
     vectorised operations. Time-varying σ_k is exact because each cross covariance carries the
     gains of the steps it has lived through.
 
-Start-up (SPEC §3.1, I1): the robot rests at q_0 before operation; every block is
+Start-up (docs/method.md §3.1, I1): the robot rests at q_0 before operation; every block is
 [q_0, 0, 0, 0] with covariance (1·1ᵀ) ⊗ P_rest (P_rest = 0 by default), i.e. the FIFO starts
 pre-filled with the rest pose and the first L outputs are the rest pose.
 

@@ -6,7 +6,7 @@ fixed-lag method it left the ground station L ticks after z_i arrived). For a sa
 the *best continuation* from s keeps p_0 … p_{s−1} and replaces the rest by
 
     p*_s … p*_{N−1} = argmin Σ_{i ≥ s} (p_i − z_i)²
-                      subject to the finite-difference limits of SPEC §2.6 on the whole
+                      subject to the finite-difference limits of docs/method.md §2.6 on the whole
                       sequence [q_rest × 3, p_0 … p_{s−1}, p_s … p_{N−1}],
 
 i.e. the commands closest to the operator that any method, knowing the whole future, could

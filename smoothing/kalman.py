@@ -1,4 +1,4 @@
-"""Kalman filter and Rauch–Tung–Striebel fixed-interval smoother (Offline-KS), SPEC §3, §7.
+"""Kalman filter and Rauch–Tung–Striebel fixed-interval smoother (Offline-KS), docs/method.md §3, §7.
 
 All joints are processed at once: measurements are ``(num_samples, num_joints)``, states
 ``(num_samples, num_joints, 4)`` and covariances ``(num_samples, num_joints, 4, 4)``, in physical
@@ -20,7 +20,7 @@ from telesmooth.smoothing.model import SCALED_TRANSITION, JerkModel, process_cov
 from telesmooth.smoothing.validation import check_trajectory
 
 OFFLINE_REST_PRIOR_DIAG = (None, 1e-4, 1e-3, 1e-2)
-"""SPEC §8 offline rest prior: P_0 = diag(r, 1e-4, 1e-3, 1e-2) (None stands for r)."""
+"""docs/method.md §8 offline rest prior: P_0 = diag(r, 1e-4, 1e-3, 1e-2) (None stands for r)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -165,7 +165,7 @@ def _filter_scaled(measurements, model: JerkModel, prior: GaussianPrior, sigma_s
 def kalman_filter(
     measurements, model: JerkModel, prior: GaussianPrior, *, sigma_schedule=None
 ) -> FilterResult:
-    """Runs the Kalman filter over a whole recording (SPEC §7 "KF").
+    """Runs the Kalman filter over a whole recording (docs/method.md §7 "KF").
 
     Args:
         measurements: commanded joint positions z_k, shape (N, num_joints) [rad].
@@ -188,14 +188,14 @@ def kalman_filter(
 def rts_smoother(
     measurements, model: JerkModel, prior: GaussianPrior, *, sigma_schedule=None
 ) -> SmootherResult:
-    """Offline-KS: the RTS fixed-interval smoother over the whole recording (SPEC §7).
+    """Offline-KS: the RTS fixed-interval smoother over the whole recording (docs/method.md §7).
 
     Backward pass, for k = N−2 … 0:
         C_k = P_{k|k} Φᵀ P_{k+1|k}⁻¹
         x̂_{k|N} = x̂_{k|k} + C_k (x̂_{k+1|N} − x̂_{k+1|k})
         P_{k|N} = P_{k|k} + C_k (P_{k+1|N} − P_{k+1|k}) C_kᵀ
 
-    The means equal the minimiser of the unconstrained IPLM objective (SPEC §2.3), which is
+    The means equal the minimiser of the unconstrained IPLM objective (docs/method.md §2.3), which is
     what the tests check against a dense solve.
     """
     x_pred, p_pred, x_filt, p_filt = _filter_scaled(measurements, model, prior, sigma_schedule)

@@ -1,4 +1,4 @@
-"""Every smoothing method of the paper behind one call, aligned sample by sample (SPEC §7).
+"""Every smoothing method of the paper behind one call, aligned sample by sample (docs/method.md §7).
 
 ``smooth_recording`` returns, for each input sample k, the estimate of that sample and the delay
 after which the ground station sends it:

@@ -1,4 +1,4 @@
-"""Evaluation metrics (SPEC §6): limits, deformation, Cartesian deformation, response errors.
+"""Evaluation metrics (docs/method.md §6): limits, deformation, Cartesian deformation, response errors.
 
 Finite differences of a sent position sequence p_k (period Δt):
 
@@ -46,7 +46,7 @@ def limit_statistics(values, limit) -> dict:
 
 
 def deformation_statistics(estimate, original) -> dict:
-    """|estimate − original| per joint (SPEC §6, Def_q): mean (primary), RMS and max."""
+    """|estimate − original| per joint (docs/method.md §6, Def_q): mean (primary), RMS and max."""
     error = np.abs(np.asarray(estimate, dtype=float) - np.asarray(original, dtype=float))
     return {
         "mean": error.mean(axis=0).tolist(),
@@ -58,7 +58,7 @@ def deformation_statistics(estimate, original) -> dict:
 def cartesian_deformation(
     estimate, original, forward_kinematics: Callable[[np.ndarray], np.ndarray]
 ) -> dict:
-    """d(i) = ‖FK(q̂_i) − FK(q_i^ORG)‖ (SPEC §6, E_def): mean (primary), RMS and max [m].
+    """d(i) = ‖FK(q̂_i) − FK(q_i^ORG)‖ (docs/method.md §6, E_def): mean (primary), RMS and max [m].
 
     Args:
         estimate, original: joint trajectories, shape (M, J).
@@ -76,12 +76,12 @@ def cartesian_deformation(
 
 
 def tracking_errors(commanded_xy, measured_xy) -> np.ndarray:
-    """e(i) = ‖x_cmd(i) − x^A(i)‖, the response error against the measured track (SPEC §6)."""
+    """e(i) = ‖x_cmd(i) − x^A(i)‖, the response error against the measured track (docs/method.md §6)."""
     return np.linalg.norm(np.asarray(commanded_xy) - np.asarray(measured_xy), axis=-1)
 
 
 def improvement_ratio(errors_original, errors_smoothed) -> float:
-    """P = (Σ e_ORG − Σ e_SMT) / Σ e_ORG × 100 % (SPEC §6)."""
+    """P = (Σ e_ORG − Σ e_SMT) / Σ e_ORG × 100 % (docs/method.md §6)."""
     total_original = float(np.sum(errors_original))
     if total_original <= 0.0:
         raise ValueError(f"sum of e_ORG = {total_original!r} must be > 0 to form P")
@@ -100,7 +100,7 @@ def smoothing_metrics(
     forward_kinematics=None,
     joint_names=None,
 ) -> dict:
-    """All SPEC §6 metrics of one smoothed trajectory against the original, JSON-ready.
+    """All docs/method.md §6 metrics of one smoothed trajectory against the original, JSON-ready.
 
     Args:
         smoothed_positions: sent positions q̂_k aligned with the original samples, (M, J).

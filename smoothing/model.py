@@ -1,4 +1,4 @@
-"""The per-joint 4-state jerk model of the paper (SPEC §1) and its scaled form.
+"""The per-joint 4-state jerk model of the paper (docs/method.md §1) and its scaled form.
 
 Each joint i is smoothed on its own. Its state is ``x = [q, q̇, q̈, q⃛]`` (rad, rad/s, rad/s²,
 rad/s³), driven by white jounce noise of intensity σ (rad²/s⁷) and observed through a noisy
@@ -6,10 +6,10 @@ position sample of variance r (rad²):
 
     ẋ = A x + G w,   z = H x + v,   E[w(t) w(s)] = σ δ(t − s),   E[v²] = r
 
-Exact discretisation with period Δt (SPEC §1.2): ``x_{k+1} = Φ x_k + w_k``, ``w_k ~ N(0, Q)``,
+Exact discretisation with period Δt (docs/method.md §1.2): ``x_{k+1} = Φ x_k + w_k``, ``w_k ~ N(0, Q)``,
 ``Q_ab = σ Δt^(7−a−b) / ((7−a−b) (3−a)! (3−b)!)``.
 
-Scaled state (SPEC §1.2): with ``T = diag(1, Δt, Δt², Δt³)`` and ``x̃ = T x``, the transition
+Scaled state (docs/method.md §1.2): with ``T = diag(1, Δt, Δt², Δt³)`` and ``x̃ = T x``, the transition
 ``Φ̃ = T Φ T⁻¹`` no longer depends on Δt and ``Q̃ = σ Δt⁷ Q1``. Every estimator in this package
 works in the scaled state internally (cond(Q) in physical units grows like Δt⁻⁶ at 100 Hz) and
 maps back with ``x = T⁻¹ x̃``.
@@ -32,7 +32,7 @@ STATE_SIZE = 4
 
 STATE_NAMES = ("position", "velocity", "acceleration", "jerk")
 
-# Q at Δt = 1, σ = 1 (SPEC §1.2 closed form).
+# Q at Δt = 1, σ = 1 (docs/method.md §1.2 closed form).
 UNIT_PROCESS_COVARIANCE = np.array(
     [
         [1.0 / ((7 - a - b) * factorial(3 - a) * factorial(3 - b)) for b in range(STATE_SIZE)]
@@ -49,7 +49,7 @@ UNIT_PROCESS_PRECISION = np.array(
         [-840.0, 480.0, -120.0, 16.0],
     ]
 )
-"""Q1⁻¹, exact integers (SPEC §1.2)."""
+"""Q1⁻¹, exact integers (docs/method.md §1.2)."""
 
 SCALED_TRANSITION = np.array(
     [
@@ -158,7 +158,7 @@ class JerkModel:
 
 
 def sigma_from_bandwidth(cutoff_hz: float, *, r: float, dt_s: float) -> float:
-    """σ for an RTS −3 dB bandwidth f_c: σ = r Δt (2π f_c / 0.9)⁸ (SPEC §1.4, §8).
+    """σ for an RTS −3 dB bandwidth f_c: σ = r Δt (2π f_c / 0.9)⁸ (docs/method.md §1.4, §8).
 
     The bandwidth grows only as σ^(1/8): halving it needs σ / 256.
     """
@@ -171,11 +171,11 @@ def sigma_from_bandwidth(cutoff_hz: float, *, r: float, dt_s: float) -> float:
 DEFAULT_DT_S = 0.25
 """4 Hz uplink period of the paper [P]."""
 DEFAULT_R = 1e-6
-"""(1e-3 rad)², SPEC §8."""
+"""(1e-3 rad)², docs/method.md §8."""
 DEFAULT_SIGMA = 4e-4
-"""σ_0 for f_c ≈ 0.36 Hz at Δt = 0.25 s, r = 1e-6 (SPEC §8)."""
+"""σ_0 for f_c ≈ 0.36 Hz at Δt = 0.25 s, r = 1e-6 (docs/method.md §8)."""
 DEFAULT_LAG = 3
-"""L = 0.75 s / 0.25 s (SPEC §5.1)."""
+"""L = 0.75 s / 0.25 s (docs/method.md §5.1)."""
 MAX_LAG = 1000
 """Longest fixed lag accepted, samples: a fixed-lag step costs about L² (the superstate's L³),
 so L = 10⁴ on a 40-sample recording takes minutes for nothing (at 4 Hz, 1000 samples is

@@ -1,6 +1,6 @@
 """Offline-CKS: the inequality-constrained fixed-interval smoother as a Drake MathematicalProgram.
 
-SPEC §2.5. Per joint, with decision variables Y ∈ ℝ^{4×N} (the scaled states y_k = T x_k),
+docs/method.md §2.5. Per joint, with decision variables Y ∈ ℝ^{4×N} (the scaled states y_k = T x_k),
 minimise the Kalman-smoother negative log-likelihood multiplied by r:
 
     f(Y) = ½ Σ_k (z_k − y_k[0])²
@@ -9,9 +9,9 @@ minimise the Kalman-smoother negative log-likelihood multiplied by r:
 
 subject to, by ``constraint``:
 
-``"state"`` (the paper's (11), soft in the sense of SPEC §2.4)
+``"state"`` (the paper's (11), soft in the sense of docs/method.md §2.4)
     |y_k[2]| ≤ a_max Δt²,  |y_k[3]| ≤ j_max Δt³  for every k.
-``"trajectory"`` (SPEC §2.6, hard limits on the positions actually sent)
+``"trajectory"`` (docs/method.md §2.6, hard limits on the positions actually sent)
     With the committed history p_{−3} = p_{−2} = p_{−1} = q_start in front (robot at rest):
     |Δp| ≤ v_max Δt (optional),  |Δ²p| ≤ a_max Δt²,  |Δ³p| ≤ j_max Δt³ over the whole sequence.
     Always feasible: the constant trajectory p_k ≡ q_start satisfies every row.
@@ -171,7 +171,7 @@ def solve_offline_cks(
     banded_options: BandedIpOptions | None = None,
     threads: int | None = None,
 ) -> OfflineCksResult:
-    """Solves Offline-CKS for every joint (SPEC §2.5/§2.6).
+    """Solves Offline-CKS for every joint (docs/method.md §2.5/§2.6).
 
     Args:
         measurements: z_k, shape (N, num_joints) [rad], uniform period model.dt_s.
@@ -181,7 +181,7 @@ def solve_offline_cks(
         max_velocity: v_max per joint [rad/s] (trajectory mode only); None disables.
         constraint: "state" (paper, default), "trajectory" (hard FD limits), "both", "none".
         rest_at_end: require rest at the last sample (see module docstring).
-        prior: N(x̄_0, P_0); default rest at z_0 with diag(r, 1e-4, 1e-3, 1e-2) (SPEC §8).
+        prior: N(x̄_0, P_0); default rest at z_0 with diag(r, 1e-4, 1e-3, 1e-2) (docs/method.md §8).
         start_position: q_start of the committed history (trajectory mode); default z_0.
         joint_names: used in constraint names and error messages.
         tolerance: the tightest Clarabel tol_gap_abs/tol_gap_rel/tol_feas tried first; if

@@ -1,4 +1,4 @@
-"""Online-CKS: the fixed-lag smoother with reduced-Q adaptation of σ (SPEC §4).
+"""Online-CKS: the fixed-lag smoother with reduced-Q adaptation of σ (docs/method.md §4).
 
 Each 4 Hz cycle, per joint:
 
@@ -9,7 +9,7 @@ Each 4 Hz cycle, per joint:
     B2: as B1 but re-filter the whole window (the last L+1 steps) from the stored checkpoint
 
     dec(σ) = max(ρ σ, σ_min)     multiplicative step (default, ρ = 0.8)
-    dec(σ) = max(σ − Δσ, σ_min)  additive step (the paper's literal Δσ; ineffective, SPEC §4.3)
+    dec(σ) = max(σ − Δσ, σ_min)  additive step (the paper's literal Δσ; ineffective, docs/method.md §4)
 
 σ never increases within an operation. The σ reached is stored per operator and joint and is
 the next operation's σ_0 (``save_operator_sigma`` / ``load_operator_sigma``).
@@ -42,12 +42,12 @@ REDUCED_Q_VARIANTS = ("A", "B1", "B2")
 SIGMA_STEP_RULES = ("multiplicative", "additive")
 VIOLATION_TRIGGERS = ("state", "fd")
 DEFAULT_SIGMA_MIN_RATIO = 2.5e-4
-"""σ_min = 2.5e-4 σ_0 by default (1e-7 for the default σ_0 = 4e-4, SPEC §4.3, §8)."""
+"""σ_min = 2.5e-4 σ_0 by default (1e-7 for the default σ_0 = 4e-4, docs/method.md §4, §8)."""
 
 
 @dataclass(frozen=True)
 class ReducedQConfig:
-    """How σ is reduced when the smoothed output breaks the limits (SPEC §4.2).
+    """How σ is reduced when the smoothed output breaks the limits (docs/method.md §4).
 
     Attributes:
         variant: "A" (one step per cycle, default), "B1" or "B2" (retries within the cycle).
@@ -192,7 +192,7 @@ class OnlineCks:
         )
 
     def _violation(self, output, sent_positions) -> np.ndarray:
-        """Per joint: does this cycle's command break a limit (SPEC §4.2 trigger)?"""
+        """Per joint: does this cycle's command break a limit (docs/method.md §4 trigger)?"""
         if self.config.trigger == "state":
             acc, jerk = output[:, 2], output[:, 3]
         else:

@@ -2,9 +2,9 @@
 
 Consumes the FIFO's newest sample z_k at every uplink tick and emits x̂_{k−L|k}, the smoothed
 estimate of the sample leaving the FIFO at that tick, so the smoothed command and the raw
-delayed command are the same instant of the operator's motion (SPEC §5.1: the FIFO is the
+delayed command are the same instant of the operator's motion (docs/method.md §5.1: the FIFO is the
 smoother window; total added latency L·Δt). The numerics are the core's
-:class:`~telesmooth.smoothing.reduced_q.OnlineCks` (SPEC §3, §4); this system only keeps its
+:class:`~telesmooth.smoothing.reduced_q.OnlineCks` (docs/method.md §3, §4); this system only keeps its
 state in the Context and wires ports.
 """
 
@@ -142,7 +142,7 @@ class ReducedQSmoother(LeafSystem):
     last three sent positions, the B2 checkpoints) packed into one discrete vector, plus the
     raw window of the last L+1 samples (for ``pass-through``). Updated at t_k = k·period_s.
 
-    Equations per tick (SPEC §3.2, §4.2), with X the state after tick k−1:
+    Equations per tick (docs/method.md §3.2, §4.2), with X the state after tick k−1:
 
         if reset_k:  X ← rest state at z_k (blocks [z_k, 0, 0, 0], P = 0), σ kept
         (X', σ', x̂_{k−L|k}, triggered) = OnlineCks.step(X, z_k)

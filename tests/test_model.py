@@ -1,4 +1,4 @@
-"""Oracle tests of the jerk model (SPEC §1): Φ, exact Q, scaling identities, validation."""
+"""Oracle tests of the jerk model (docs/method.md §1): Φ, exact Q, scaling identities, validation."""
 
 from fractions import Fraction
 from math import factorial
@@ -85,7 +85,7 @@ def test_process_covariance_broadcasts_over_joints():
 
 
 def test_sigma_from_bandwidth_matches_spec_default():
-    # SPEC §8: σ_0 ≈ 4e-4 for f_c ≈ 0.36 Hz at Δt = 0.25 s, r = 1e-6.
+    # docs/method.md §8: σ_0 ≈ 4e-4 for f_c ≈ 0.36 Hz at Δt = 0.25 s, r = 1e-6.
     sigma = sigma_from_bandwidth(0.36, r=1e-6, dt_s=0.25)
     assert 3e-4 < sigma < 5e-4
     # Bandwidth scales as σ^(1/8): doubling f_c multiplies σ by 256.

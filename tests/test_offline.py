@@ -21,7 +21,7 @@ def _recording(num_samples=40, num_joints=2, seed=21):
 
 
 def _dense_qp(z, model, joint, *, constraint, acc, jerk, vel=None, rest_at_end=False):
-    """The same QP written out densely and independently (SPEC §2.3/§2.6), scaled variables
+    """The same QP written out densely and independently (docs/method.md §2.3/§2.6), scaled variables
     y_k = T x_k stacked as [y_0, …, y_{N−1}], objective multiplied by r."""
     n = len(z)
     dt, r, sigma = model.dt_s, model.r[joint], model.sigma[joint]
@@ -85,7 +85,7 @@ def _dense_qp(z, model, joint, *, constraint, acc, jerk, vel=None, rest_at_end=F
             a_eq[index, 4 * (n - 1) + 1 + index] = 1.0
         b_eq = np.zeros(3)
     # The dual residual of a dense double-precision IP stalls near 1e-10 relative here (the
-    # Hessian spans ~1e7), as SPEC §2.3 notes for the ckbs port; 1e-9 is the honest target.
+    # Hessian spans ~1e7), as docs/method.md §2.3 notes for the ckbs port; 1e-9 is the honest target.
     a_in, b_in = np.array(rows), np.array(bounds)
     result = solve_dense_qp(hessian, gradient, a_in, b_in, a_eq, b_eq, tol=1e-9)
     x = _polish_active_set(hessian, gradient, a_in, b_in, a_eq, b_eq, result)

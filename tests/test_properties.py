@@ -10,7 +10,7 @@ Invariants:
 * Online-CKS σ is non-increasing and never below σ_min;
 * Offline-CKS with ``constraint="trajectory"`` succeeds and its positions, with the committed
   rest history q_start = z_0 three times in front (and, with ``rest_at_end``, the last position
-  held three more times), meet the FD limits within metrics.VIOLATION_RTOL (SPEC §2.6).
+  held three more times), meet the FD limits within metrics.VIOLATION_RTOL (docs/method.md §2.6).
 """
 
 import math
@@ -77,7 +77,7 @@ def assert_fd_limits(sequence, dt, acc, jerk, vel):
 
 
 def with_history(z, positions, rest_at_end):
-    """[q_start ×3, p_0 … p_{N−1}(, p_{N−1} ×3)] with q_start = z_0 (SPEC §2.6)."""
+    """[q_start ×3, p_0 … p_{N−1}(, p_{N−1} ×3)] with q_start = z_0 (docs/method.md §2.6)."""
     parts = [np.repeat(z[:1], HISTORY, axis=0), positions]
     if rest_at_end:
         parts.append(np.repeat(positions[-1:], HISTORY, axis=0))
@@ -171,7 +171,7 @@ def step_recording(num_samples=8, height=1e-3):
 
 
 def test_offline_cks_trajectory_solves_a_small_step_at_4hz():
-    """A 1 mrad step in 8 samples at 4 Hz with the SPEC §8 limits (once failed with
+    """A 1 mrad step in 8 samples at 4 Hz with the docs/method.md §8 limits (once failed with
     InsufficientProgress at tolerance 1e-12)."""
     z = step_recording()
     result = smooth_recording(

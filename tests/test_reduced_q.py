@@ -1,4 +1,4 @@
-"""Tests for telesmooth.smoothing.reduced_q: Online-CKS (BMFLS + reduced-Q σ), SPEC §4.
+"""Tests for telesmooth.smoothing.reduced_q: Online-CKS (BMFLS + reduced-Q σ), docs/method.md §4.
 
 Covers the σ invariants (non-increasing, never below σ_min) for every variant/step/trigger,
 the reduction to BMFLS when nothing triggers, the literal variant-A update rule, the two step
@@ -29,7 +29,7 @@ from telesmooth.smoothing.reduced_q import (
 DT = 0.25
 R = 1e-6
 SIGMA0 = 4e-4
-A_MAX = 0.05  # rad/s², SPEC §4.3
+A_MAX = 0.05  # rad/s², docs/method.md §4
 J_MAX = 0.1  # rad/s³
 
 
@@ -239,7 +239,7 @@ GENTLE_REACHES = ((0.3, 6.0), (-0.5, 8.0), (0.4, 5.0), (0.2, 10.0), (-0.35, 7.0)
 
 def two_operations(trigger, seed=0, reaches=C8_REACHES):
     """The same recorded motion twice, the second starting from the σ the first reached
-    (SPEC §4.3 settings: r = 1e-6, σ_0 = 4e-4, ρ = 0.8, σ_min = 1e-7, limits 0.05 / 0.1)."""
+    (docs/method.md §4 settings: r = 1e-6, σ_0 = 4e-4, ρ = 0.8, σ_min = 1e-7, limits 0.05 / 0.1)."""
     z = recorded_motion(seed, reaches=reaches)
     config = ReducedQConfig(variant="A", step_rule="multiplicative", rho=0.8, sigma_min=1e-7,
                             trigger=trigger)
