@@ -25,7 +25,7 @@ from telesmooth.smoothing.validation import as_per_joint
 from telesmooth.systems.laser_tracker import tracker_record
 
 __all__ = ["ResponseErrors", "SimulationRecord", "plant_summary", "plant_text",
-           "response_delay_s", "response_errors", "run_duration_s", "run_metrics", "sample_at", "simulate",
+           "response_delay_s", "response_errors", "response_instants", "run_duration_s", "run_metrics", "sample_at", "simulate",
            "tool_positions"]
 
 
@@ -50,6 +50,8 @@ class SimulationRecord:
             the index in ``STOP_OUTCOMES`` of the last collision stop plan and its braking
             distance per joint, rad, (T, J); None with the hold.
         initial_position_rad: The robot's start pose, rad, (J,).
+        ramp_start_t_s: Every instant at which the robot's interpolator started a ramp
+            towards a new command, s (sorted); None if not logged.
     """
 
     scenario: Scenario
@@ -74,6 +76,7 @@ class SimulationRecord:
     stop_status: np.ndarray | None = None
     braking_distance: np.ndarray | None = None
     initial_position_rad: np.ndarray | None = None
+    ramp_start_t_s: np.ndarray | None = None
 
     @property
     def num_joints(self) -> int:
@@ -210,6 +213,7 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
         braking_distance=(log("braking_distance").data().T.copy()
                           if "braking_distance" in handles.logs else None),
         initial_position_rad=np.array(handles.ground.initial_position_rad, dtype=float),
+        ramp_start_t_s=np.unique(log("command_ramp").data()[0]),
     )
 
 
@@ -253,13 +257,47 @@ def response_delay_s(scenario: Scenario) -> float:
             else scenario.uplink.period_s)
 
 
+def response_instants(packet_t_s, ramp_start_t_s, ramp_s: float) -> np.ndarray:
+    """When the robot's response to each packet is read, s: ``ramp_s`` after the robot began
+    to move towards it.
+
+    The robot begins at the first ramp start at or after the packet's send time and before
+    the next packet's: the send time itself when the interpolator reads it (the uplink
+    drives the robot), later behind a link (latency, the receiver's poll, the guard). A
+    packet that started no ramp (its command equals the one before, or it was lost or
+    rejected) is read as long after its send time as the packet before it was (its send
+    time + ``ramp_s`` if none was). Without ramp starts (None) every packet is read at its
+    send time + ``ramp_s``.
+    """
+    packet_t_s = np.asarray(packet_t_s, dtype=float)
+    if ramp_start_t_s is None:
+        return packet_t_s + ramp_s
+    starts = np.asarray(ramp_start_t_s, dtype=float)
+    tolerance = 1e-9
+    first = np.searchsorted(starts, packet_t_s - tolerance, side="left")
+    following = np.r_[packet_t_s[1:], np.inf] - tolerance
+    begin = np.full(packet_t_s.shape, np.nan)
+    found = first < starts.size
+    begin[found] = starts[first[found]]
+    begin[~(begin < following)] = np.nan
+    lag = 0.0
+    for k in range(packet_t_s.size):
+        if np.isnan(begin[k]):
+            begin[k] = packet_t_s[k] + lag
+        else:
+            lag = begin[k] - packet_t_s[k]
+    return begin + ramp_s
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class ResponseErrors:
     """The robot's response to each packet k, read when the set-point has reached it.
 
     Attributes:
-        response_t_s: t_k + ramp, the instant the tracker is read, s, (M,).
-        response_m: e(k) = ‖FK(q_sent,k) − x_tracker(t_k + ramp)‖, m, (M,).
+        response_t_s: The instant the tracker is read, s, (M,): ``ramp_s`` after the robot
+            began to move towards packet k (:func:`response_instants`; t_k + ramp when the
+            uplink drives the robot).
+        response_m: e(k) = ‖FK(q_sent,k) − x_tracker(response instant)‖, m, (M,).
         chain_t_s: The same instants for the packets that carry an operator sample, s, (C,).
         chain_m: ‖FK(q_operator(t_k − delay)) − x_tracker(t_k + ramp)‖, m, (C,).
         ramp_s: How long after its send time a command is read (:func:`response_delay_s`), s.
@@ -278,7 +316,7 @@ def response_errors(record: SimulationRecord) -> ResponseErrors:
     scenario = record.scenario
     ramp = response_delay_s(scenario)
     sample_times = record.packet_t_s - scenario.fifo.delay_s
-    response_times = record.packet_t_s + ramp
+    response_times = response_instants(record.packet_t_s, record.ramp_start_t_s, ramp)
     inside = response_times <= record.tracker_t_s[-1]
     measured = sample_at(record.tracker_t_s, record.tool_position_m, response_times[inside])
     e_response = tracking_errors(tool_positions(scenario, record.q_sent[inside]), measured)

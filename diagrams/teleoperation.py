@@ -420,12 +420,16 @@ def uplink_packets(handles: "TeleoperationHandles", context):
 def add_onboard_loggers(builder, robot: FlexibleJointArm, period_s: float) -> dict:
     """Loggers of the robot: "tracker", the laser tracker's samples with the time each was
     taken (read it with :func:`~telesmooth.systems.laser_tracker.tracker_record`: a logger
-    stamps a held sample one period after it was measured), and "command_rejected"."""
+    stamps a held sample one period after it was measured), "command_rejected", and
+    "command_ramp", the interpolator's ramp in progress (its start time t₀ is when the robot
+    began to move towards each command: the link's latency and the receiver's poll included).
+    """
     return {
         "tracker": LogVectorOutput(robot.GetOutputPort("tracker_measurement"), builder,
                                    period_s),
         "command_rejected": LogVectorOutput(robot.GetOutputPort("command_rejected"), builder,
                                             period_s),
+        "command_ramp": LogVectorOutput(robot.GetOutputPort("command_ramp"), builder, period_s),
     }
 
 

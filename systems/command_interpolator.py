@@ -561,6 +561,7 @@ class CommandInterpolator(Diagram):
         builder.ExportInput(gate.get_command_time_input_port(), "command_time")
         builder.ExportOutput(set_point.get_output_port(), "state_desired")
         builder.ExportOutput(gate.get_command_rejected_output_port(), "command_rejected")
+        builder.ExportOutput(gate.get_ramp_output_port(), "ramp")
         builder.BuildInto(self)
         self._gate = gate
         self._lead_s = float(lead_s)
@@ -595,6 +596,11 @@ class CommandInterpolator(Diagram):
 
     def get_command_rejected_output_port(self):
         return self.GetOutputPort("command_rejected")
+
+    def get_ramp_output_port(self):
+        """The ramp in progress, [t₀ (s), q₀ (rad, n), q₁ (rad, n)]: t₀ is when the robot
+        started towards its newest command q₁ (the instant a response is measured from)."""
+        return self.GetOutputPort("ramp")
 
     def get_rejected_command_count(self, context) -> int:
         """How many distinct commands were rejected so far (``context``: this system's)."""

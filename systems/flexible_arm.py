@@ -411,6 +411,7 @@ class FlexibleJointArm(Diagram):
         builder.ExportOutput(interpolator.get_command_rejected_output_port(),
                              "command_rejected")
         builder.ExportOutput(interpolator.get_state_desired_output_port(), "state_desired")
+        builder.ExportOutput(interpolator.get_ramp_output_port(), "command_ramp")
         builder.ExportOutput(plant.get_state_output_port(), "plant_state")
         builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
         builder.BuildInto(self)

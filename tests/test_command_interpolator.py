@@ -100,13 +100,13 @@ def test_command_violation_names_joint_and_value():
 
 def test_port_contract_and_output_before_first_command():
     dut = make_dut()
-    assert dut.num_input_ports() == 2 and dut.num_output_ports() == 2
+    assert dut.num_input_ports() == 2 and dut.num_output_ports() == 3
     assert dut.get_input_port(0).get_name() == "q_commanded"
     assert dut.get_input_port(0).size() == 2
     assert dut.get_input_port(1).get_name() == "command_time"   # optional
     assert dut.get_input_port(1).size() == 1
-    assert [dut.get_output_port(i).get_name() for i in range(2)] == [
-        "state_desired", "command_rejected"]
+    assert [dut.get_output_port(i).get_name() for i in range(3)] == [
+        "state_desired", "command_rejected", "ramp"]
     assert dut.get_state_desired_output_port().size() == 4
     assert dut.get_command_rejected_output_port().size() == 1
     # Outputs come from state and time only: no algebraic loop through the plant.

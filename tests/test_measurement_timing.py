@@ -197,3 +197,62 @@ def test_with_a_zero_order_hold_the_response_is_read_at_the_end_of_each_hold():
     np.testing.assert_allclose(run.response_error_m, expected, rtol=0, atol=1e-15)
     step = radius * omega * period
     assert run.response_error_m[20:].max() < 0.5 * step
+
+
+# -- behind a link: the response is read from when the robot began to move ------------------
+
+
+def test_response_instants_start_at_each_packets_first_ramp():
+    from telesmooth.diagrams.simulation import response_instants
+
+    packets = np.array([0.0, 0.25, 0.5, 0.75, 1.0])
+    # Ramps start 0.1301 s after packets 0, 1 and 3 (latency + poll); packet 2 started none
+    # (its command was the one before), packet 4 neither (lost): both are read as late as
+    # the packet before them was.
+    starts = np.array([0.0 - 0.5, 0.1301, 0.3801, 0.8801])
+    got = response_instants(packets, starts, 0.25)
+    np.testing.assert_allclose(got, packets + 0.1301 + 0.25, rtol=0, atol=1e-12)
+    # A ramp that starts at the packet's own send time (the uplink drives the robot).
+    np.testing.assert_allclose(response_instants(packets, packets, 0.25), packets + 0.25)
+    # No ramp after the next packet's send time is taken for this one.
+    np.testing.assert_allclose(response_instants(packets[:2], np.array([0.3]), 0.25),
+                               [0.25, 0.3 + 0.25])
+    # No record of ramp starts: the send time + the ramp.
+    np.testing.assert_allclose(response_instants(packets, None, 0.25), packets + 0.25)
+
+
+def _moving_scenario(tmp_path, extra=""):
+    t = np.arange(0.0, 6.0, 0.01)
+    pose = np.column_stack([0.7 + 0.1 * np.sin(0.5 * t), 0.1 + 0.1 * (1 - np.cos(0.5 * t)),
+                            0.3 + 0.05 * t])
+    path = tmp_path / "moving.csv"
+    write_haptic_csv(path, HapticRecording(t_s=t, pose=pose, enable=np.ones(t.size, bool),
+                                           pose_names=("x_m", "y_m", "phi_rad")))
+    return load_scenario(scenario_text=(
+        f"{{haptic: {{source: file, file: '{path}'}}, settle_s: 1.0, "
+        "smoother: {method: online-hard}, "
+        f"onboard: {{tracker: {{noise_m: 0.0}}}}{extra}}}"))
+
+
+def test_behind_a_delaying_link_e_is_read_when_the_robot_began_to_move(tmp_path):
+    """A link that delays every packet by 0.2 s only shifts the robot's motion (online-hard:
+    the stream keeps the limits, so the onboard guard passes it bit for bit): the robot
+    begins each ramp at the receiver's first poll after the packet arrives (+0.1 ms after
+    the 10 ms grid) and the guard passes the stream bit for bit, so e is the same as with
+    the uplink driving the robot directly. Read at the send time + ramp, as if there were
+    no link, e would include 0.2 s of travel."""
+    direct = simulate(_moving_scenario(tmp_path))
+    delayed = simulate(_moving_scenario(tmp_path, ", link: {faults: {delay_s: 0.2}}"))
+    assert delayed.ramp_start_t_s is not None and delayed.ramp_start_t_s.size > 10
+    np.testing.assert_array_equal(delayed.q_sent, direct.q_sent)
+    e_direct = run_metrics(direct)["tracking"]["response_error_m"]
+    e_delayed = run_metrics(delayed)["tracking"]["response_error_m"]
+    assert e_direct["mean"] > 1e-5                        # the robot does move
+    assert e_delayed["mean"] == pytest.approx(e_direct["mean"], rel=0.05)
+    assert e_delayed["max"] == pytest.approx(e_direct["max"], rel=0.05)
+    # The old instant: the same record read at each send time + the ramp.
+    import dataclasses as _dc
+
+    from telesmooth.diagrams.simulation import response_errors
+    old = response_errors(_dc.replace(delayed, ramp_start_t_s=None)).response_m
+    assert old.mean() > 5 * e_delayed["mean"]
