@@ -647,16 +647,13 @@ def extrapolate_experiment(sample: list[dict], c8_cpu_s: dict, lengths: dict,
 
 
 def bench_experiment(shapes, *, workers: int = 2) -> dict:
-    """Per-task times on the sample with the default plant and the experiment's 5 ms step,
-    and the grid extrapolated from each."""
-    from telesmooth.diagrams.experiment import ExperimentConfig
-
+    """Per-task times on the sample with the default plant (the experiment's) and a 5 ms
+    step, and the grid extrapolated from each."""
     lengths = in_fresh_process(_recording_lengths)["lengths"]
     c8 = {shape: in_fresh_process(_experiment_c8_cell, shape)["cpu_s"] for shape in shapes[:1]}
     report = {"sample": list(shapes), "c8_cpu_s": c8, "plants": {}}
     for label, step in (("default plant", None),
-                        (f"{1e3 * ExperimentConfig().plant_time_step_s:g} ms step "
-                         "(the experiment's)", ExperimentConfig().plant_time_step_s)):
+                        ("5 ms step", 0.005)):
         sample = [in_fresh_process(_experiment_cell, shape, 0, step) for shape in shapes]
         grid = extrapolate_experiment(sample, c8, lengths, workers)
         report["plants"][label] = {"sample": sample, "grid": grid}

@@ -520,7 +520,8 @@ def _add_experiment_parser(subparsers) -> None:
                    help="shapes of the C8 study, each over its 7 demonstrations "
                         "('none' to skip; default all)")
     p.add_argument("--plant-step", type=number, default=defaults.plant_time_step_s,
-                   help=f"plant time step in s (default {defaults.plant_time_step_s})")
+                   help="plant time step in s, 0 = continuous (default: the scenario's plant, "
+                        "continuous unless onboard.time_step_s says otherwise)")
     p.add_argument("--settle", type=number, default=defaults.settle_s,
                    help=f"simulated seconds after the operator stops (default "
                         f"{defaults.settle_s})")
@@ -597,10 +598,12 @@ def run_experiment_command(args) -> int:
     _check_run_length(base, None, uses_duration=False)
     _check_finite("--settle", args.settle)
     _check_at_most("--settle", args.settle, MAX_SIMULATED_S)
-    _check_finite("--plant-step", args.plant_step)
-    if args.plant_step < MIN_PLANT_STEP_S:
-        raise ValueError(f"--plant-step = {args.plant_step!r} s is below {MIN_PLANT_STEP_S} s "
-                         "(each simulated second would take hours)")
+    if args.plant_step is not None:
+        _check_finite("--plant-step", args.plant_step, allow_zero=True)
+        if args.plant_step != 0 and args.plant_step < MIN_PLANT_STEP_S:
+            raise ValueError(f"--plant-step = {args.plant_step!r} s is below "
+                             f"{MIN_PLANT_STEP_S} s (each simulated second would take hours; "
+                             "0 is the continuous plant)")
     if args.quick:
         shapes, sensitivity, c8 = ("Angle", "CShape"), ("Angle",), ("Angle",)
     else:

@@ -335,7 +335,7 @@ def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figure
         "haptic rate; one sample per 4 Hz uplink tick.",
         f"- Limits: those of the base scenario (a_max = {meta['a_max']} rad/s², j_max = "
         f"{meta['j_max']} rad/s³ per joint).",
-        f"- Plant: the flexible-joint arm stepped at {config.plant_time_step_s * 1e3:g} ms, "
+        f"- Plant: the flexible-joint arm, {_plant_step_text(config.plant_time_step_s)}, "
         f"{config.settle_s:g} s simulated after the operator's last sample; drive presets "
         f"{list(config.plants)} (`onboard.drive.preset`).",
         f"- KF: every claim uses `{config.kf_form}` (the other form is given beside it); the "
@@ -371,6 +371,12 @@ def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figure
 
 
 # --- the output folder: resumable, splittable, mergeable ---------------------------------------
+
+def _plant_step_text(step_s) -> str:
+    if step_s is None:
+        return "as the base scenario runs it (`onboard.time_step_s`; continuous by default)"
+    return "continuous" if step_s == 0 else f"stepped at {step_s * 1e3:g} ms"
+
 
 GRID_FILE = "grid.json"
 RECORDS_FILE = "records.jsonl"

@@ -558,9 +558,9 @@ def cases() -> list[Case]:
     add("onboard-duration-inf", "3.3",
         ["onboard", *MEMQ, "--no-auth", "--duration", "inf"], absent=(),
         must_name=("--duration", "inf"), time_limit_s=30)
-    add("experiment-plant-step-zero", "3.3",
-        ["experiment", "--quick", "--plant-step", "0", "--out", "out", "--workers", "0"],
-        must_name=("--plant-step", "0"))
+    add("experiment-plant-step-negative", "3.3",
+        ["experiment", "--quick", "--plant-step", "-0.001", "--out", "out", "--workers", "0"],
+        must_name=("--plant-step", "-0.001"))
     add("experiment-plant-step-nan", "3.3",
         ["experiment", "--quick", "--plant-step", "nan", "--out", "out", "--workers", "0"],
         must_name=("--plant-step", "nan"))

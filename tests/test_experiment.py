@@ -89,7 +89,8 @@ def test_the_grid_has_every_cell_once_in_report_order():
     ({"shapes": ("Angle", "Circle")}, r"shapes: unknown LASA shape\(s\) \['Circle'\]"),
     ({"demos": (7,)}, r"demos = \[7\] must be indices 0–6"),
     ({"methods": ("kalman",)}, r"methods \['kalman'\]"),
-    ({"plant_time_step_s": 0.0}, r"plant_time_step_s = 0.0"),
+    ({"plant_time_step_s": -0.001}, r"plant_time_step_s = -0.001"),
+    ({"plant_time_step_s": math.nan}, r"plant_time_step_s = nan"),
     ({"rhos": (1.2,)}, r"rhos: 1.2"),
     ({"offline_solver": "cvxpy"}, r"offline_solver = 'cvxpy' must be one of"),
 ])
@@ -538,3 +539,16 @@ def test_two_runs_on_one_folder_are_refused(base, tmp_path, monkeypatch):
     assert not (out / "records.jsonl").exists()
     write_experiment_report(out, base, _grid(), workers=0, progress=lambda line: None)
     assert (out / "records.jsonl").exists()       # released: the next run goes ahead
+
+
+def test_the_experiment_runs_the_plant_that_simulate_and_compare_run(base):
+    """By default every run uses the scenario's plant (continuous), as ``simulate`` and
+    ``compare`` do: a 5 ms step would triple e on Defaults. An explicit step is kept, and 0 is
+    the continuous plant."""
+    assert ExperimentConfig().plant_time_step_s is None
+    default = experiment_scenario(base, small_config(), "Angle", 0)
+    assert default.onboard.time_step_s == base.onboard.time_step_s == 0.0
+    stepped = experiment_scenario(base, small_config(plant_time_step_s=0.005), "Angle", 0)
+    assert stepped.onboard.time_step_s == 0.005
+    assert experiment_scenario(base, small_config(plant_time_step_s=0.0), "Angle", 0) \
+        .onboard.time_step_s == 0.0
