@@ -1,7 +1,7 @@
 """The ``telesmooth`` command line.
 
 Subcommands:
-    smooth   smooth a joint trajectory CSV with one method (the contract in the README)
+    smooth   smooth a joint trajectory CSV with one method (the contract in docs/commands.md)
     demo     the main job: a real human demonstration (LASA) through every method, with a report
     simulate, compare, foresight, experiment, bench   reports on scenarios (``--out`` folders)
     ground, onboard, keygen, link-relay                the two-process link

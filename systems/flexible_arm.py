@@ -132,7 +132,7 @@ class FlexibleArmConfig:
             PD and damping) that reads its set-point at the start of each step: a command
             sent at t moves the motors only from the first step after t, so the set-point
             stalls for up to one step at every command, and the tracking error grows with
-            the step (see the README's "Simulation speed and accuracy").
+            the step (see docs/numerics.md, "Simulation speed and accuracy").
         discrete_contact_approximation: One of :data:`DISCRETE_CONTACT_APPROXIMATIONS`.
             The default is ``"lagged"``. Without contact, all of them give the same
             result here.

@@ -10,7 +10,7 @@ deflection, must agree within 1 %.
 
 (A fixed plant step is a different matter: a discrete plant sees each command from the first
 step after it was sent, so the set-point stalls for up to one step per command and e grows
-with the step; the README's "Simulation speed and accuracy" gives the measured convergence.)
+with the step; docs/numerics.md, "Simulation speed and accuracy", gives the measured convergence.)
 """
 
 import numpy as np

@@ -1,6 +1,6 @@
-"""The README's two-process run with a CPU-bound process beside it: the onboard guard tracks.
+"""The documented two-process run (docs/link.md) with a CPU-bound process beside it: the onboard guard tracks.
 
-Exactly the README's commands — ``telesmooth keygen``, ``telesmooth onboard … &``,
+Exactly the documented commands — ``telesmooth keygen``, ``telesmooth onboard … &``,
 ``telesmooth ground …`` on the Defaults scenario (a LASA demonstration, Online-CKS) — on a
 private udpm bus, with ``python3 -c "while True: pass"`` running beside them. Two
 departures, both for a loaded machine: the onboard process runs until this test stops it
