@@ -1,4 +1,5 @@
-"""The documented two-process run (docs/link.md) with a CPU-bound process beside it: the onboard guard tracks.
+"""The documented two-process run (docs/link.md) with a CPU-bound process beside it: the
+onboard guard tracks.
 
 Exactly the documented commands — ``telesmooth keygen``, ``telesmooth onboard … &``,
 ``telesmooth ground …`` on the Defaults scenario (a LASA demonstration, Online-CKS) — on a
