@@ -930,12 +930,16 @@ def _default_joint_command(msg) -> bool:
 class JointReceiverModel:
     """What the receiver's docstrings promise, written without looking at its state layout.
 
-    A packet is examined if it is not the default message, has seq ≥ 0, its
-    (session_id, seq) is newer than the last accepted one's (any before the first), and it
-    is not the packet examined just before (same pair: a packet is examined once). It is accepted if it names
-    exactly the robot's joints in order, with one finite position per joint inside
-    [lower, upper]; then it becomes the command and clears the rejected flag.
-    Otherwise the flag is raised and the command holds. Stale/repeated packets change nothing.
+    A packet is examined if it is not the default message, has seq ≥ 0 and its
+    (session_id, seq) is newer than the last accepted one's (any before the first), once (the
+    same pair held again is not examined again). It is fresh (telesmooth.link.session's
+    rule, in process: epoch 0) if it carries epoch 0 and, against the last accepted
+    (s₀, q₀) ((0, −1) before the first), its session s is s₀ with seq > q₀, or its counter
+    (the high bits above the 32-bit nonce) is counter(s₀) + 1. A packet of an earlier session
+    or seq is stale or a duplicate (ignored); a wrong epoch or a session that skips ahead is
+    refused (flagged). A fresh packet is accepted if it names exactly the robot's joints in
+    order, with one finite position per joint inside [lower, upper]; then it becomes the
+    command and clears the rejected flag. Otherwise the flag is raised and the command holds.
     Timeout: more than ``timeout_s`` since the last accepted packet (from t = 0 before any).
     """
 
@@ -945,7 +949,7 @@ class JointReceiverModel:
         self.q = list(q0)
         # "last_command_seq: −1 before the first" and "seq ≤ last are ignored".
         self.last_seq, self.last_time, self.rejected, self.examined = -1, 0.0, False, None
-        self.last_pair = None
+        self.last_pair = (0, -1)
         self.timeout = False
 
     def acceptable(self, msg) -> bool:
@@ -955,18 +959,33 @@ class JointReceiverModel:
                 and all(math.isfinite(v) and lo <= v <= hi
                         for v, lo, hi in zip(positions, self.lower, self.upper)))
 
+    def freshness(self, msg) -> str:
+        """"fresh", "old" (stale or duplicate: ignored) or "refused" (flagged)."""
+        if int(msg.onboard_epoch) != 0:
+            return "refused"
+        session, seq = int(msg.session_id), int(msg.seq)
+        last_session, last_seq = self.last_pair
+        if session == last_session:
+            return "fresh" if seq > last_seq else "old"
+        counter, last_counter = session // 2**32, last_session // 2**32
+        if counter == last_counter + 1:
+            return "fresh"
+        return "old" if counter <= last_counter else "refused"
+
     def poll(self, msg, now):
         # The subscriber's default message is not a packet; any other one (even with an
-        # empty joint list) is examined once if newer.
+        # empty joint list) is examined once.
         pair = None if msg is None else (msg.session_id, msg.seq)
-        if msg is not None and not _default_joint_command(msg) and msg.seq >= 0 and (
-                self.last_pair is None or pair > self.last_pair) and pair != self.examined:
+        newer = self.last_seq < 0 or pair > self.last_pair
+        if msg is not None and not _default_joint_command(msg) and msg.seq >= 0 and newer \
+                and pair != self.examined:
             self.examined = pair
-            if self.acceptable(msg):
+            fresh = self.freshness(msg)
+            if fresh == "fresh" and self.acceptable(msg):
                 self.q = [float(v) for v in msg.joint_position_smoothed]
                 self.last_seq, self.last_time, self.rejected = msg.seq, now, False
-                self.last_pair = pair
-            else:
+                self.last_pair = (int(msg.session_id), int(msg.seq))
+            elif fresh != "old":
                 self.rejected = True
         self.timeout = now - self.last_time > self.timeout_s
 

@@ -798,7 +798,7 @@ def test_guard_step_is_pure_and_its_state_round_trips_through_a_vector():
 def joint_command(seq, q):
     msg = lcmt_teleop_joint_command()
     msg.seq = seq
-    msg.session_id = 1
+    msg.session_id = 0       # in process: epoch 0, session 0 (telesmooth.link.session)
     msg.num_joints = len(JOINTS)
     msg.joint_name = list(JOINTS)
     msg.joint_position_smoothed = [float(x) for x in q]

@@ -32,7 +32,7 @@ def test_writes_every_file(run):
     # The report names the demonstration, states the plant's modes, and links no replay
     # that was not made.
     assert "the LASA demonstration `Angle` #0 at 1× the demonstrator's hand speed" in text
-    assert "Plant: `air_bearing_arm`, drive preset `lab` (1 ms steps)" in text
+    assert "Plant: `air_bearing_arm`, drive preset `lab` (continuous)" in text
     assert "2.66 Hz (ζ 0.072)" in text and "run.html" not in text
 
 
