@@ -83,7 +83,7 @@ from telesmooth.smoothing.metrics import (
     tracking_errors,
 )
 from telesmooth.smoothing.offline import with_rest_history
-from telesmooth.smoothing.validation import as_per_joint
+from telesmooth.arms.joint_vectors import as_per_joint
 
 __all__ = [
     "COMPARE_METHODS",

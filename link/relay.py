@@ -34,7 +34,7 @@ from pathlib import Path
 
 import lcm
 
-from telesmooth.diagrams.channels import (
+from telesmooth.lcm_types.channels import (
     LCM_URL_SCHEMES,
     ONBOARD_JOINT_STATUS,
     TELEOP_JOINT_COMMAND,
@@ -305,7 +305,7 @@ def parse_link_option(option: str, text: str | None) -> LinkFaultConfig | None:
     """
     if text is None:
         return None
-    from telesmooth.diagrams.typed_yaml import load_yaml_text
+    from telesmooth.typed_yaml import load_yaml_text
     # Bounded plain data (size, nesting, aliases), string keys each given once.
     data = load_yaml_text(text, source=option)
     try:

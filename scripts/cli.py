@@ -43,7 +43,7 @@ from telesmooth.smoothing.reduced_q import (
     stored_operators,
 )
 from telesmooth.smoothing.trajectory_io import read_joint_csv, write_joint_csv
-from telesmooth.smoothing.validation import as_per_joint
+from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.user_input import name_fields, parse_plain_number, quote
 
 MAX_MESSAGE_CHARS = 300
@@ -651,7 +651,7 @@ def _add_bench_parser(subparsers) -> None:
 
 
 def _add_process_parsers(subparsers) -> None:
-    from telesmooth.diagrams.channels import DEFAULT_LCM_URL
+    from telesmooth.lcm_types.channels import DEFAULT_LCM_URL
 
     for name, text in (("ground", "run the ground station process (publishes the 4 Hz uplink)"),
                        ("onboard", "run the onboard robot process (subscribes to the uplink)")):
@@ -701,7 +701,7 @@ def run_keygen(args) -> int:
 def run_process(args) -> int:
     from telesmooth.scripts.processes import run_ground, run_onboard
 
-    from telesmooth.diagrams.channels import check_lcm_url
+    from telesmooth.lcm_types.channels import check_lcm_url
 
     scenario = _load_scenario(args)
     url = check_lcm_url("--lcm-url" if args.lcm_url else "lcm_url (scenario)",

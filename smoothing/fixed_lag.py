@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from telesmooth.smoothing.model import MAX_LAG, SCALED_TRANSITION, STATE_SIZE, JerkModel
-from telesmooth.smoothing.validation import check_positive_int, check_trajectory
+from telesmooth.arms.joint_vectors import check_positive_int, check_trajectory
 
 FIXED_LAG_METHODS = ("recursion", "superstate")
 

@@ -49,7 +49,7 @@ from telesmooth.smoothing.offline import solve_offline_cks
 from telesmooth.smoothing.offline_hard import solve_offline_hard
 from telesmooth.smoothing.reduced_q import OnlineCks, ReducedQConfig
 from telesmooth.smoothing.ruckig_stream import ruckig_stream
-from telesmooth.smoothing.validation import (
+from telesmooth.arms.joint_vectors import (
     as_per_joint,
     check_positive_int,
     check_positive_scalar,

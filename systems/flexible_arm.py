@@ -106,7 +106,7 @@ class DriveConfig:
             ValueError: naming the field (``drive.<field>``), the joint and the value, if a
                 value is not a positive finite number or the joint count does not match.
         """
-        from telesmooth.smoothing.validation import as_per_joint
+        from telesmooth.arms.joint_vectors import as_per_joint
 
         arm = drive_preset(arm, self.preset)
         values = {}

@@ -29,7 +29,7 @@ from telesmooth.smoothing.model import (
 )
 from telesmooth.smoothing.reduced_q import OnlineCks, ReducedQConfig
 from telesmooth.smoothing.state_vector import OnlineCksStateVector
-from telesmooth.smoothing.validation import as_per_joint
+from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.systems.timing import check_period
 
 __all__ = ["ONLINE_SMOOTHER_METHODS", "ReducedQSmoother", "ReducedQSmootherConfig"]
