@@ -525,12 +525,12 @@ def _step_text(step: float) -> str:
 
 
 def _experiment_scenario(shape: str, demo: int, time_step_s: float | None):
-    """The experiment's scenario of one demonstration (``diagrams.experiment``'s
+    """The experiment's scenario of one demonstration (``studies.experiment``'s
     ``experiment_scenario``) with the plant step given (None: the default plant)."""
     import dataclasses
     import zlib
 
-    from telesmooth.diagrams.experiment import ExperimentConfig
+    from telesmooth.studies.experiment import ExperimentConfig
     from telesmooth.diagrams.scenario import load_scenario
 
     base = load_scenario(scenario_name="Defaults")
@@ -548,7 +548,7 @@ def _experiment_scenario(shape: str, demo: int, time_step_s: float | None):
 def _experiment_cell(shape: str, demo: int, time_step_s: float | None) -> dict:
     """Every method on one demonstration, as the experiment runs each task (the IK pass once,
     as one worker does for the tasks of a demonstration it has already seen)."""
-    from telesmooth.diagrams.comparison import (
+    from telesmooth.studies.comparison import (
         COMPARE_METHODS,
         operator_samples,
         prepare_comparison,
@@ -579,7 +579,7 @@ def _experiment_cell(shape: str, demo: int, time_step_s: float | None) -> dict:
 
 def _experiment_c8_cell(shape: str) -> dict:
     """One C8 task (core only: Online-CKS over the shape's 7 demonstrations, twice)."""
-    from telesmooth.diagrams.experiment import ExperimentConfig, ExperimentTask, run_task
+    from telesmooth.studies.experiment import ExperimentConfig, ExperimentTask, run_task
     from telesmooth.diagrams.scenario import load_scenario
 
     base = load_scenario(scenario_name="Defaults")
@@ -615,7 +615,7 @@ def extrapolate_experiment(sample: list[dict], c8_cpu_s: dict, lengths: dict,
     recordings. Tasks are spread evenly over the workers (Dask's scheduling overhead and
     idle ends are not counted): wall ≈ CPU / workers.
     """
-    from telesmooth.diagrams.experiment import ExperimentConfig, make_tasks
+    from telesmooth.studies.experiment import ExperimentConfig, make_tasks
 
     config = ExperimentConfig(demos=tuple(range(7)))
     tasks = make_tasks(config)
@@ -649,7 +649,7 @@ def extrapolate_experiment(sample: list[dict], c8_cpu_s: dict, lengths: dict,
 def bench_experiment(shapes, *, workers: int = 2) -> dict:
     """Per-task times on the sample with the default plant and the experiment's 5 ms step,
     and the grid extrapolated from each."""
-    from telesmooth.diagrams.experiment import ExperimentConfig
+    from telesmooth.studies.experiment import ExperimentConfig
 
     lengths = in_fresh_process(_recording_lengths)["lengths"]
     c8 = {shape: in_fresh_process(_experiment_c8_cell, shape)["cpu_s"] for shape in shapes[:1]}

@@ -414,7 +414,7 @@ def run_simulate(args) -> int:
 
 
 def _add_compare_parser(subparsers) -> None:
-    from telesmooth.diagrams.comparison import COMPARE_METHODS
+    from telesmooth.studies.comparison import COMPARE_METHODS
 
     p = subparsers.add_parser(
         "compare",
@@ -430,7 +430,7 @@ def _add_compare_parser(subparsers) -> None:
 
 
 def _add_foresight_parser(subparsers) -> None:
-    from telesmooth.diagrams.comparison import COMPARE_METHODS
+    from telesmooth.studies.comparison import COMPARE_METHODS
 
     p = subparsers.add_parser(
         "foresight",
@@ -470,7 +470,7 @@ def _add_offline_solver_argument(p) -> None:
 def run_compare(args) -> int:
     from telesmooth.scripts.compare_report import write_comparison_report
 
-    from telesmooth.diagrams.comparison import COMPARE_METHODS
+    from telesmooth.studies.comparison import COMPARE_METHODS
 
     scenario = _load_scenario(args)
     _check_run_length(scenario, None, uses_duration=False)
@@ -496,7 +496,7 @@ def _method_list(text: str, known) -> tuple:
 
 
 def _add_experiment_parser(subparsers) -> None:
-    from telesmooth.diagrams.experiment import EXPERIMENT_METHODS, KF_FORMS, ExperimentConfig
+    from telesmooth.studies.experiment import EXPERIMENT_METHODS, KF_FORMS, ExperimentConfig
 
     defaults = ExperimentConfig()
     p = subparsers.add_parser(
@@ -585,7 +585,7 @@ def _number_list(text: str, option: str) -> tuple[float, ...]:
 
 
 def run_experiment_command(args) -> int:
-    from telesmooth.diagrams.experiment import EXPERIMENT_METHODS, ExperimentConfig
+    from telesmooth.studies.experiment import EXPERIMENT_METHODS, ExperimentConfig
     from telesmooth.scripts.experiment_report import (
         merge_experiment_reports,
         parse_demos,

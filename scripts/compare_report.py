@@ -1,7 +1,7 @@
 """`telesmooth compare`: the paper's Table 2 for one scenario, every method through one plant.
 
 Output folder:
-    comparison.json  per method: every docs/method.md §6 figure (diagrams.comparison), the table rows,
+    comparison.json  per method: every docs/method.md §6 figure (studies.comparison), the table rows,
                      and the scenario summary
     packets.csv      the packet each method sent at every 4 Hz tick (positions per joint)
     table.md         the Table 2 rows alone (Markdown)
@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from telesmooth.atomic_files import atomic_write, write_text
-from telesmooth.diagrams.comparison import (
+from telesmooth.studies.comparison import (
     COMPARE_METHODS,
     LEAST_DEFORMATION,
     Comparison,
@@ -245,7 +245,7 @@ def _report_text(comparison: Comparison, rows, figures, plant: dict) -> str:
         "",
         table,
         "",
-        "How to read it (docs/method.md §6; definitions in `telesmooth.diagrams.comparison`):",
+        "How to read it (docs/method.md §6; definitions in `telesmooth.studies.comparison`):",
         "",
         "- FD acc/jerk: finite differences of the packets as the plant receives them (start "
         "pose before, last packet held after), worst joint; *over* is the share of samples "

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from telesmooth.atomic_files import write_text
-from telesmooth.diagrams.comparison import COMPARE_METHODS, method_settings, operator_samples
+from telesmooth.studies.comparison import COMPARE_METHODS, method_settings, operator_samples
 from telesmooth.diagrams.simulation import tool_positions
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.smoothing.foresight import foresight_sweep

@@ -1,17 +1,17 @@
 """The paper's experiment on real human demonstrations, at scale (``telesmooth experiment``).
 
 Grid (every task is one simulation of the whole chain, see
-:func:`~telesmooth.diagrams.comparison.run_method`), for every *cell* (plant drive preset ×
+:func:`~telesmooth.studies.comparison.run_method`), for every *cell* (plant drive preset ×
 operator speed):
 
     LASA shape × demonstration × method      (the main table; every method of
-                                              :data:`~telesmooth.diagrams.comparison.COMPARE_METHODS`)
+                                              :data:`~telesmooth.studies.comparison.COMPARE_METHODS`)
     sensitivity shapes × Online-CKS variant  (σ_0, σ_min and the reduced-Q step ρ, one at a time)
 
 plus one core-only task per shape for claim C8 (Online-CKS over the shape's demonstrations in
 order, each operation starting from the σ the previous one ended with, against each starting
 from σ_0). Each cell is summarised and judged on its own
-(:func:`telesmooth.diagrams.claims.summarize_cells`).
+(:func:`telesmooth.studies.claims.summarize_cells`).
 
 Operator speed is a multiple of the demonstrator's own hand speed: the LASA clock is stretched by
 the default ``lasa_mapping.time_scale`` (10, the hand's own speed) divided by the speed (speed 2.5
@@ -32,7 +32,7 @@ cluster of worker processes by default (bound to 127.0.0.1, no dashboard: only t
 health/metrics HTTP endpoint, on 127.0.0.1), an existing cluster
 given its scheduler address, or in this process (``workers=0``).
 
-Each task's record is JSON-ready; :mod:`telesmooth.diagrams.claims` aggregates the records
+Each task's record is JSON-ready; :mod:`telesmooth.studies.claims` aggregates the records
 and judges the claims, without running anything.
 """
 
@@ -48,7 +48,7 @@ import numpy as np
 
 from telesmooth.arms.modes import plant_modes
 from telesmooth.datasets.lasa import LASA_DEMOS_PER_SHAPE, LASA_SHAPES, WorkspaceMapping
-from telesmooth.diagrams.comparison import (
+from telesmooth.studies.comparison import (
     COMPARE_METHODS,
     OperatorSamples,
     method_settings,
