@@ -26,7 +26,7 @@ from telesmooth.arms.air_bearing import (
     planar_pose_to_space_arm,
     space_arm_pose_to_planar,
 )
-from telesmooth.arms.description import AIR_BEARING_ARM_3DOF, SPACE_ARM_6DOF, ArmDescription
+from telesmooth.arms.description import ARMS, ArmDescription
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_3r_inverse_kinematics
 from telesmooth.arms.workspace import AIR_BEARING_WORKSPACE, SPACE_ARM_WORKSPACE, Workspace
 from telesmooth.datasets.haptic_recording import (
@@ -64,7 +64,6 @@ from telesmooth.systems.reduced_q_smoother import ReducedQSmootherConfig
 from telesmooth.systems.uplink import UplinkConfig
 
 __all__ = [
-    "ARMS",
     "BUILTIN_SCENARIOS_FILE",
     "HAPTIC_SOURCES",
     "HapticScenario",
@@ -74,7 +73,6 @@ __all__ = [
     "make_haptic_recording",
 ]
 
-ARMS = {"air_bearing_arm": AIR_BEARING_ARM_3DOF, "space_arm": SPACE_ARM_6DOF}
 HAPTIC_SOURCES = ("lasa", "synthetic", "file", "lcm")
 BUILTIN_SCENARIOS_FILE = pathlib.Path(__file__).resolve().parent / "scenarios.yaml"
 
