@@ -548,8 +548,8 @@ def _experiment_scenario(shape: str, demo: int, time_step_s: float | None):
 def _experiment_cell(shape: str, demo: int, time_step_s: float | None) -> dict:
     """Every method on one demonstration, as the experiment runs each task (the IK pass once,
     as one worker does for the tasks of a demonstration it has already seen)."""
+    from telesmooth.smoothing.methods import METHODS
     from telesmooth.studies.comparison import (
-        COMPARE_METHODS,
         operator_samples,
         prepare_comparison,
         run_method,
@@ -562,7 +562,7 @@ def _experiment_cell(shape: str, demo: int, time_step_s: float | None) -> dict:
     samples = operator_samples(scenario)
     ik_cpu_s = time.process_time() - started
     methods = {}
-    for method in COMPARE_METHODS:
+    for method in METHODS:
         wall, cpu = time.perf_counter(), time.process_time()
         setup = prepare_comparison(scenario, samples)
         run = run_method(setup, method)

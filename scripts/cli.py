@@ -29,7 +29,13 @@ from pathlib import Path
 
 
 from telesmooth.smoothing.kalman import START_PRIORS
-from telesmooth.smoothing.methods import METHODS, SmoothingSettings, smooth_recording
+from telesmooth.smoothing.methods import (
+    METHOD_ALIASES,
+    METHODS,
+    SmoothingSettings,
+    method_name,
+    smooth_recording,
+)
 from telesmooth.smoothing.metrics import smoothing_metrics
 from telesmooth.smoothing.model import DEFAULT_LAG, DEFAULT_R, DEFAULT_SIGMA
 from telesmooth.smoothing.offline import OFFLINE_CONSTRAINTS, OFFLINE_SOLVERS
@@ -45,6 +51,9 @@ from telesmooth.smoothing.reduced_q import (
 from telesmooth.smoothing.trajectory_io import read_joint_csv, write_joint_csv
 from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.user_input import name_fields, parse_plain_number, quote
+
+METHOD_CHOICES = METHODS + tuple(METHOD_ALIASES)
+"""What a ``--method`` option takes: every method of the registry and its aliases."""
 
 MAX_MESSAGE_CHARS = 300
 """Longest error line printed (a backstop: messages quote values short at their source)."""
@@ -119,7 +128,10 @@ def _add_smooth_parser(subparsers) -> None:
     )
     p.add_argument("input", type=Path, help="input CSV: header t,<joint names…>")
     p.add_argument("-o", "--output", type=Path, required=True, help="output CSV")
-    p.add_argument("--method", choices=METHODS, default="online-cks")
+    p.add_argument("--method", choices=METHOD_CHOICES, default="online-cks", metavar="METHOD",
+                   help="the smoothing method (default online-cks): " + ", ".join(METHODS)
+                   + "; pass-through is original; offline-cks-trajectory is offline-cks with "
+                   "--constraint trajectory --rest-at-end, as `compare` runs it")
     p.add_argument("--acc-max", type=parse_per_joint, required=True, metavar="A",
                    help="acceleration limit a_max [rad/s²]")
     p.add_argument("--jerk-max", type=parse_per_joint, required=True, metavar="J",
@@ -173,6 +185,7 @@ def _planar_fk(planar_forward_kinematics, link_lengths, q):
 def run_smooth(args) -> int:
     from telesmooth.atomic_files import Outputs
 
+    args.method = method_name(args.method, "--method")
     if (args.operator is None) != (args.sigma_store is None):
         raise ValueError("--operator and --sigma-store go together")
     if args.operator is not None and not args.operator.strip():
@@ -414,24 +427,20 @@ def run_simulate(args) -> int:
 
 
 def _add_compare_parser(subparsers) -> None:
-    from telesmooth.studies.comparison import COMPARE_METHODS
-
     p = subparsers.add_parser(
         "compare",
         help="every smoothing method on one scenario through the same plant (paper Table 2)",
     )
     _add_scenario_arguments(p)
     p.add_argument("--out", type=Path, default=Path("out/compare"), help="report folder")
-    p.add_argument("--methods", default=",".join(COMPARE_METHODS),
-                   help="comma list of methods (default all: " + ",".join(COMPARE_METHODS)
+    p.add_argument("--methods", default=",".join(METHODS),
+                   help="comma list of methods (default all: " + ",".join(METHODS)
                    + "); original is always run, it is the reference of P")
     _add_offline_solver_argument(p)
     p.set_defaults(handler=run_compare)
 
 
 def _add_foresight_parser(subparsers) -> None:
-    from telesmooth.studies.comparison import COMPARE_METHODS
-
     p = subparsers.add_parser(
         "foresight",
         help="how much of a method's deformation needed foresight: the best continuation of "
@@ -439,8 +448,9 @@ def _add_foresight_parser(subparsers) -> None:
     )
     _add_scenario_arguments(p)
     p.add_argument("--out", type=Path, default=Path("out/foresight"), help="report folder")
-    p.add_argument("--method", choices=COMPARE_METHODS, default="online-hard",
-                   help="the method whose commands are continued (default online-hard)")
+    p.add_argument("--method", choices=METHOD_CHOICES, default="online-hard", metavar="METHOD",
+                   help="the method whose commands are continued (default online-hard): "
+                   + ", ".join(METHODS))
     p.add_argument("--step", type=int, default=4,
                    help="samples between two starts (default 4: every second at 4 Hz)")
     p.set_defaults(handler=run_foresight)
@@ -470,11 +480,9 @@ def _add_offline_solver_argument(p) -> None:
 def run_compare(args) -> int:
     from telesmooth.scripts.compare_report import write_comparison_report
 
-    from telesmooth.studies.comparison import COMPARE_METHODS
-
     scenario = _load_scenario(args)
     _check_run_length(scenario, None, uses_duration=False)
-    methods = _method_list(args.methods, COMPARE_METHODS)
+    methods = _method_list(args.methods, METHODS)
     with _scenario_outputs(args, scenario) as outputs:
         report = write_comparison_report(outputs.folder("--out", args.out), scenario,
                                          methods=methods, offline_solver=args.solver)
@@ -483,20 +491,16 @@ def run_compare(args) -> int:
 
 
 def _method_list(text: str, known) -> tuple:
-    """``--methods``: a comma list of known methods, at least one."""
-    from telesmooth.user_input import unknown_choice
-
+    """``--methods``: a comma list of known methods (or their aliases), at least one; the
+    registry's names."""
     methods = tuple(m.strip() for m in text.split(",") if m.strip())
     if not methods:
         raise ValueError(f"--methods = {quote(text)} names no method")
-    for method in methods:
-        if method not in known:
-            raise ValueError(unknown_choice("--methods", method, known, noun="methods"))
-    return methods
+    return tuple(method_name(method, "--methods", known) for method in methods)
 
 
 def _add_experiment_parser(subparsers) -> None:
-    from telesmooth.studies.experiment import EXPERIMENT_METHODS, KF_FORMS, ExperimentConfig
+    from telesmooth.studies.experiment import KF_FORMS, ExperimentConfig
 
     defaults = ExperimentConfig()
     p = subparsers.add_parser(
@@ -511,8 +515,8 @@ def _add_experiment_parser(subparsers) -> None:
     p.add_argument("--demos", default="0",
                    help="demonstrations of each shape: comma list of 0-6, or 'all' "
                         "(default 0; 'all' is the full grid of 210)")
-    p.add_argument("--methods", default=",".join(EXPERIMENT_METHODS),
-                   help="comma list of methods (default all: " + ",".join(EXPERIMENT_METHODS)
+    p.add_argument("--methods", default=",".join(METHODS),
+                   help="comma list of methods (default all: " + ",".join(METHODS)
                    + ")")
     p.add_argument("--sensitivity-shapes", default=",".join(defaults.sensitivity_shapes),
                    help="shapes of the Online-CKS sensitivity study ('none' to skip)")
@@ -585,7 +589,7 @@ def _number_list(text: str, option: str) -> tuple[float, ...]:
 
 
 def run_experiment_command(args) -> int:
-    from telesmooth.studies.experiment import EXPERIMENT_METHODS, ExperimentConfig
+    from telesmooth.studies.experiment import ExperimentConfig
     from telesmooth.scripts.experiment_report import (
         merge_experiment_reports,
         parse_demos,
@@ -609,7 +613,7 @@ def run_experiment_command(args) -> int:
         c8 = _shape_list(args.c8_shapes, "--c8-shapes")
     if not shapes:
         raise ValueError("--shapes names no shape")
-    methods = _method_list(args.methods, EXPERIMENT_METHODS)
+    methods = _method_list(args.methods, METHODS)
     plants = tuple(p.strip() for p in args.plants.split(",") if p.strip())
     try:
         config = ExperimentConfig(shapes=shapes, demos=parse_demos(args.demos), methods=methods,

@@ -22,7 +22,6 @@ import numpy as np
 
 from telesmooth.atomic_files import atomic_write, write_text
 from telesmooth.studies.comparison import (
-    COMPARE_METHODS,
     LEAST_DEFORMATION,
     Comparison,
     compare_methods,
@@ -31,6 +30,7 @@ from telesmooth.diagrams.scenario import describe_operator
 from telesmooth.diagrams.simulation import plant_text, tool_positions
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.scripts.formatting import limit_ratio
+from telesmooth.smoothing.methods import METHODS
 from telesmooth.smoothing.metrics import finite_differences
 from telesmooth.smoothing.offline import HISTORY_LENGTH, with_rest_history
 
@@ -268,7 +268,7 @@ def _report_text(comparison: Comparison, rows, figures, plant: dict) -> str:
     return "\n".join(lines)
 
 
-def write_comparison_report(out_dir, scenario, *, methods=COMPARE_METHODS,
+def write_comparison_report(out_dir, scenario, *, methods=METHODS,
                             progress=_log, offline_solver="drake") -> Path:
     """Runs :func:`compare_methods` and writes the report folder; returns report.md's path."""
     out = Path(out_dir)

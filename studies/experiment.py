@@ -5,7 +5,7 @@ Grid (every task is one simulation of the whole chain, see
 operator speed):
 
     LASA shape × demonstration × method      (the main table; every method of
-                                              :data:`~telesmooth.studies.comparison.COMPARE_METHODS`)
+                                              :data:`~telesmooth.smoothing.methods.METHODS`)
     sensitivity shapes × Online-CKS variant  (σ_0, σ_min and the reduced-Q step ρ, one at a time)
 
 plus one core-only task per shape for claim C8 (Online-CKS over the shape's demonstrations in
@@ -49,7 +49,6 @@ import numpy as np
 from telesmooth.arms.modes import plant_modes
 from telesmooth.datasets.lasa import LASA_DEMOS_PER_SHAPE, LASA_SHAPES, WorkspaceMapping
 from telesmooth.studies.comparison import (
-    COMPARE_METHODS,
     OperatorSamples,
     method_settings,
     operator_samples,
@@ -59,7 +58,7 @@ from telesmooth.studies.comparison import (
 )
 from telesmooth.diagrams.scenario import Scenario
 from telesmooth.smoothing.metrics import finite_differences
-from telesmooth.smoothing.methods import smooth_recording
+from telesmooth.smoothing.methods import METHOD_ALIASES, METHODS, method_name, smooth_recording
 from telesmooth.smoothing.offline import OFFLINE_SOLVERS, with_rest_history
 from telesmooth.smoothing.reduced_q import DEFAULT_SIGMA_MIN_RATIO
 
@@ -73,9 +72,6 @@ __all__ = [
     "run_experiment",
     "run_task",
 ]
-
-EXPERIMENT_METHODS = COMPARE_METHODS
-"""The methods of the main table."""
 
 KF_FORMS = ("kf", "kf-predictor")
 """The paper's "KF" comparator read as the a-posteriori filter x̂_{k|k} or its one-step
@@ -111,7 +107,7 @@ class ExperimentConfig:
 
     shapes: tuple[str, ...] = LASA_SHAPES
     demos: tuple[int, ...] = (0,)
-    methods: tuple[str, ...] = EXPERIMENT_METHODS
+    methods: tuple[str, ...] = METHODS
     plant_time_step_s: float = 0.005
     settle_s: float = 5.0
     sensitivity_shapes: tuple[str, ...] = ("Angle", "CShape", "GShape", "Sshape", "Worm")
@@ -150,9 +146,13 @@ class ExperimentConfig:
         if self.offline_solver not in OFFLINE_SOLVERS:
             raise ValueError(f"offline_solver = {self.offline_solver!r} must be one of "
                              f"{OFFLINE_SOLVERS}")
-        unknown = [m for m in self.methods if m not in EXPERIMENT_METHODS]
+        unknown = [m for m in self.methods if not isinstance(m, str)
+                   or (m not in METHODS and m not in METHOD_ALIASES)]
         if unknown:
-            raise ValueError(f"methods {unknown!r} are not among {EXPERIMENT_METHODS}")
+            raise ValueError(f"methods {unknown!r} are not among {METHODS}")
+        # The registry's names (an alias such as pass-through is its method, original).
+        if any(m in METHOD_ALIASES for m in self.methods):
+            object.__setattr__(self, "methods", tuple(method_name(m) for m in self.methods))
         for field in ("plant_time_step_s", "settle_s"):
             value = getattr(self, field)
             if not (math.isfinite(value) and value > 0):
@@ -172,7 +172,7 @@ class ExperimentTask:
         index: Position in the grid (results are returned in this order).
         kind: ``"run"`` (one simulation) or ``"c8"`` (core only, one shape's demonstrations).
         shape, demo: The LASA demonstration (``demo`` unused for ``c8``).
-        method: A method of :data:`EXPERIMENT_METHODS`.
+        method: A method of :data:`~telesmooth.smoothing.methods.METHODS`.
         label: The run's name in the tables (the method, or e.g. ``online-cks σ0×10``).
         study: ``"main"`` or the sensitivity parameter (``"sigma0"``, ``"sigma_min"``, ``"rho"``).
         value: The parameter's value (NaN for ``main``).
