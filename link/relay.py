@@ -314,13 +314,8 @@ def parse_link_option(option: str, text: str | None) -> LinkFaultConfig | None:
         raise ValueError(f"{option}: {error}") from None
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command line of the relay (``telesmooth link-relay``, ``python -m telesmooth.link.relay``).
-
-    Returns:
-        0 after a completed run. Bad arguments exit with status 2 and a message naming the
-        option and field.
-    """
+def build_parser() -> argparse.ArgumentParser:
+    """The options of ``telesmooth link-relay``."""
     parser = argparse.ArgumentParser(
         prog="telesmooth link-relay",
         description="Relay LCM traffic between two buses, applying link faults to the uplink.")
@@ -341,6 +336,17 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help=f"downlink channel (repeatable; default {ONBOARD_JOINT_STATUS})")
     parser.add_argument("--report", default=None, help="write the counts here as JSON")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command line of the relay (``telesmooth link-relay``, ``python -m telesmooth.link.relay``).
+
+    Returns:
+        0 after a completed run. Bad arguments exit with status 2 and a message naming the
+        option and field.
+    """
+    parser = build_parser()
     args = parser.parse_args(argv)
     if math.isnan(args.duration) or args.duration <= 0:
         parser.error(f"--duration = {args.duration!r} must be > 0 s")

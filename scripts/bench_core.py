@@ -759,14 +759,18 @@ def _table(offline, online, simulation=None, experiment=None) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The options of ``telesmooth bench``."""
     parser = argparse.ArgumentParser(prog="telesmooth bench",
                                      description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("out/bench"))
+    parser.add_argument("--out", type=Path, default=Path("out/bench"),
+                        help="report folder (default out/bench)")
     parser.add_argument("--max-n", type=int, default=100_000,
                         help="largest N of the Offline-CKS rows (10² … 10⁶; default 10⁵)")
-    parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--ticks", type=int, default=2000)
+    parser.add_argument("--repeat", type=int, default=3,
+                        help="timed repetitions of each row; the best is kept (default 3)")
+    parser.add_argument("--ticks", type=int, default=2000,
+                        help="online steps timed per row of the online smoothers (default 2000)")
     parser.add_argument("--max-drake-n", type=int, default=10_000,
                         help="largest N solved with the Drake MathematicalProgram too")
     parser.add_argument("--sim-duration", type=_number, default=None,
@@ -778,7 +782,11 @@ def main(argv=None) -> int:
                         help="LASA shapes (demonstration 0) of the experiment's sample "
                              f"(default {','.join(EXPERIMENT_SAMPLE)}; 'none' = skip; skipped "
                              "with --sim-duration 0 too)")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     for option, value in (("--max-n", args.max_n), ("--repeat", args.repeat),
                           ("--ticks", args.ticks), ("--max-drake-n", args.max_drake_n)):
         if value < 1:

@@ -296,6 +296,10 @@ def _add_demo_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "demo",
         help="smooth a real human demonstration (LASA) with every method and write a report",
+        description="The main job, without the plant: one LASA handwriting demonstration (a "
+        "real person's hand motion) mapped onto the air-bearing arm, converted to joint "
+        "targets and sampled at the 4 Hz uplink rate, then smoothed by every method of the "
+        "registry; writes the CSVs, metrics.json, the figures and report.md into --out.",
     )
     p.add_argument("--out", type=Path, default=Path("out/demo"), help="report folder")
     p.add_argument("--shape", default="Angle", help="LASA shape (default Angle)")
@@ -402,6 +406,9 @@ def _add_simulate_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "simulate",
         help="run a scenario headless through the whole chain and write a report",
+        description="Run a scenario in one process through the whole chain (operator, IK, "
+        "FIFO, smoother, uplink, link, onboard robot and tracker) and write a report of what "
+        "happened (commands, limits, tracking errors, figures) into --out.",
     )
     _add_scenario_arguments(p)
     p.add_argument("--out", type=Path, default=Path("out/simulate"), help="report folder")
@@ -430,6 +437,9 @@ def _add_compare_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "compare",
         help="every smoothing method on one scenario through the same plant (paper Table 2)",
+        description="Run every smoothing method (or those of --methods) on the scenario's "
+        "recorded session and play each method's commands through the same plant; write the "
+        "paper's Table 2 (limits, deformation, response error, P, latency) into --out.",
     )
     _add_scenario_arguments(p)
     p.add_argument("--out", type=Path, default=Path("out/compare"), help="report folder")
@@ -445,6 +455,10 @@ def _add_foresight_parser(subparsers) -> None:
         "foresight",
         help="how much of a method's deformation needed foresight: the best continuation of "
              "its commands from every step-th sample, the whole future known",
+        description="For one method on the scenario's recording, the best continuation within "
+        "the limits of its first s commands for every --step-th s, knowing the whole future: "
+        "the part of the method's deformation that no rule could have avoided. Writes "
+        "foresight.json, the figure and report.md into --out.",
     )
     _add_scenario_arguments(p)
     p.add_argument("--out", type=Path, default=Path("out/foresight"), help="report folder")
@@ -507,6 +521,10 @@ def _add_experiment_parser(subparsers) -> None:
         "experiment",
         help="the paper's experiment on the LASA demonstrations: every method, the claims "
              "C1-C8, the Online-CKS sensitivity; on a Dask cluster",
+        description="The paper's experiment at scale: every method on LASA demonstrations "
+        "through the whole chain, the Online-CKS sensitivity study and claim C8, run as tasks "
+        "on a Dask cluster; records.jsonl in --out is a journal (a rerun continues it) and "
+        "the report judges the claims C1-C8 per plant and operator speed.",
     )
     _add_scenario_arguments(p)
     p.add_argument("--out", type=Path, default=Path("out/experiment"), help="report folder")
@@ -650,8 +668,18 @@ def _add_bench_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "bench", add_help=False,
         help="the performance benchmark (Offline-CKS solvers vs RTS, online step vs Ruckig, "
-             "simulation real-time factors); --help lists its options")
+             "simulation real-time factors); --help lists its options",
+        description="The performance benchmark (its own options: telesmooth bench --help).")
     p.set_defaults(handler=None)  # main() hands `bench …` to bench_core before parsing
+
+
+_PROCESS_DESCRIPTIONS = {
+    "ground": "The ground station as its own process: the operator source, IK, FIFO, smoother "
+              "and the signed 4 Hz uplink published on LCM, the robot's telemetry received.",
+    "onboard": "The onboard robot as its own process: receives and checks the uplink "
+               "commands on LCM (signature, session, freshness), drives the flexible-joint "
+               "plant and publishes its telemetry.",
+}
 
 
 def _add_process_parsers(subparsers) -> None:
@@ -659,7 +687,7 @@ def _add_process_parsers(subparsers) -> None:
 
     for name, text in (("ground", "run the ground station process (publishes the 4 Hz uplink)"),
                        ("onboard", "run the onboard robot process (subscribes to the uplink)")):
-        p = subparsers.add_parser(name, help=text)
+        p = subparsers.add_parser(name, help=text, description=_PROCESS_DESCRIPTIONS[name])
         _add_scenario_arguments(p)
         p.add_argument("--lcm-url", default=None,
                        help=f"LCM URL (default: the scenario's, {DEFAULT_LCM_URL})")
@@ -682,14 +710,20 @@ def _add_process_parsers(subparsers) -> None:
                                 "comes, the ground starts from the robot's commanded pose "
                                 "(a restart continues without a jump); 0 = do not wait")
         p.set_defaults(handler=run_process, process=name)
-    p = subparsers.add_parser("keygen", help="write a fresh uplink HMAC key file (mode 0600)")
+    p = subparsers.add_parser(
+        "keygen", help="write a fresh uplink HMAC key file (mode 0600)",
+        description="Write a fresh random HMAC key for the uplink to a new file (mode 0600; "
+        "never overwrites one). Give the same file to the ground and onboard processes with "
+        "--uplink-key.")
     p.add_argument("path", help="the key file to create (never overwritten; missing folders "
                                 "are made with mode 0700)")
     p.set_defaults(handler=run_keygen)
     p = subparsers.add_parser(
         "link-relay", add_help=False,
         help="relay the uplink between two LCM URLs through a fault model (delay, jitter, "
-             "loss, duplication, reordering, outages); --help lists its options")
+             "loss, duplication, reordering, outages); --help lists its options",
+        description="The LCM relay with link faults (its own options: telesmooth link-relay "
+        "--help).")
     p.set_defaults(handler=None)  # main() hands `link-relay …` to telesmooth.link.relay
 
 
@@ -741,6 +775,20 @@ def run_process(args) -> int:
                            realtime=args.realtime, out=out, uplink_key=key)
 
 
+def package_version() -> str:
+    """The installed package's version (``importlib.metadata``); from a source tree that is
+    not installed, the version in its ``pyproject.toml``."""
+    from importlib import metadata
+
+    try:
+        return metadata.version("telesmooth")
+    except metadata.PackageNotFoundError:
+        import tomllib
+
+        pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+        return tomllib.loads(pyproject.read_text(encoding="utf-8"))["project"]["version"]
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="telesmooth",
@@ -748,6 +796,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=f"{DEBUG_FLAG} (anywhere on the command line): on an unexpected error, print "
                "the full traceback instead of one line.",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}",
+                        help="print the package version and exit")
     parser.add_argument(DEBUG_FLAG, action="store_true",
                         help="print the traceback of an unexpected error")
     subparsers = parser.add_subparsers(dest="command", required=True)
