@@ -46,6 +46,7 @@ import numpy as np
 
 __all__ = [
     "AIR_BEARING_ARM_3DOF",
+    "ARMS",
     "ArmDescription",
     "DRIVE_FIELDS",
     "PLANT_PRESETS",
@@ -275,6 +276,13 @@ AIR_BEARING_ARM_3DOF = ArmDescription(
     ),
 )
 """The air-bearing configuration as a planar 3-joint model (our numbers)."""
+
+ARMS: dict[str, ArmDescription] = {
+    "space_arm": SPACE_ARM_6DOF,
+    "air_bearing_arm": AIR_BEARING_ARM_3DOF,
+}
+"""The arms by the name a scenario's ``arm`` and :attr:`FlexibleArmConfig.arm` give: the one
+registry of arms."""
 
 
 DRIVE_FIELDS = ("stiffness_n_m_per_rad", "damping_n_m_s_per_rad", "rotor_inertia_kg_m2",

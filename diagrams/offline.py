@@ -61,7 +61,7 @@ from telesmooth.smoothing.offline import (
     solve_offline_cks,
     with_rest_history,
 )
-from telesmooth.smoothing.validation import as_per_joint
+from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.systems.flexible_arm import FlexibleJointArm
 from telesmooth.systems.planned_path_source import PlannedPathSource
 from telesmooth.systems.uplink import Uplink

@@ -4,7 +4,7 @@ A :class:`Scenario` composes the config dataclass of each stage plus the run set
 operator source, LCM URL, duration). Scenario files are mappings from scenario names to
 (partial) scenarios; :func:`load_scenario` picks one, applies text overrides and builds the
 dataclasses through their constructors, so every value is validated as in code and unknown
-keys are errors (see :mod:`telesmooth.diagrams.typed_yaml`).
+keys are errors (see :mod:`telesmooth.typed_yaml`).
 
 Built-in scenarios (``diagrams/scenarios.yaml``): ``Defaults`` (all defaults: the air-bearing
 arm replaying the LASA "Angle" demonstration 0, Online-CKS) and ``OneOfEverything`` (the
@@ -26,7 +26,7 @@ from telesmooth.arms.air_bearing import (
     planar_pose_to_space_arm,
     space_arm_pose_to_planar,
 )
-from telesmooth.arms.description import AIR_BEARING_ARM_3DOF, SPACE_ARM_6DOF, ArmDescription
+from telesmooth.arms.description import ARMS, ArmDescription
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_3r_inverse_kinematics
 from telesmooth.arms.workspace import AIR_BEARING_WORKSPACE, SPACE_ARM_WORKSPACE, Workspace
 from telesmooth.datasets.haptic_recording import (
@@ -42,7 +42,7 @@ from telesmooth.datasets.operator_recordings import (
     synthetic_haptic_recording,
 )
 from telesmooth.datasets.synthetic import SyntheticOperatorConfig
-from telesmooth.diagrams.channels import DEFAULT_LCM_URL
+from telesmooth.lcm_types.channels import DEFAULT_LCM_URL
 from telesmooth.user_input import (
     MAX_YAML_BYTES,
     InputFileError,
@@ -51,8 +51,8 @@ from telesmooth.user_input import (
     read_file_bytes,
     unknown_choice,
 )
-from telesmooth.smoothing.validation import as_per_joint
-from telesmooth.diagrams.typed_yaml import config_from_data, load_yaml_text, merge_data
+from telesmooth.arms.joint_vectors import as_per_joint
+from telesmooth.typed_yaml import config_from_data, load_yaml_text, merge_data
 from telesmooth.systems.collision_checker import CollisionCheckerConfig
 from telesmooth.systems.delay_fifo import DelayFifoConfig
 from telesmooth.systems.flexible_arm import FlexibleArmConfig
@@ -64,7 +64,6 @@ from telesmooth.systems.reduced_q_smoother import ReducedQSmootherConfig
 from telesmooth.systems.uplink import UplinkConfig
 
 __all__ = [
-    "ARMS",
     "BUILTIN_SCENARIOS_FILE",
     "HAPTIC_SOURCES",
     "HapticScenario",
@@ -74,7 +73,6 @@ __all__ = [
     "make_haptic_recording",
 ]
 
-ARMS = {"air_bearing_arm": AIR_BEARING_ARM_3DOF, "space_arm": SPACE_ARM_6DOF}
 HAPTIC_SOURCES = ("lasa", "synthetic", "file", "lcm")
 BUILTIN_SCENARIOS_FILE = pathlib.Path(__file__).resolve().parent / "scenarios.yaml"
 
@@ -354,7 +352,7 @@ def load_scenario(*, filename=None, scenario_name: str | None = None,
 
     Raises:
         ValueError: the file cannot be read within the bounds of
-            :func:`~telesmooth.diagrams.typed_yaml.load_yaml_text` (a regular UTF-8 file of at
+            :func:`~telesmooth.typed_yaml.load_yaml_text` (a regular UTF-8 file of at
             most ``MAX_YAML_BYTES``), unknown scenario name (listing the known ones), an
             entry that is not a mapping, unknown keys, invalid values; each message names the
             source and the key path as written (``haptic.period_s``) and the value.

@@ -18,14 +18,16 @@ import numpy as np
 from pydrake.systems.analysis import Simulator
 
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_forward_kinematics
-from telesmooth.diagrams.scenario import Scenario, describe_operator
+from telesmooth.diagrams.scenario import Scenario, describe_operator, make_haptic_recording
 from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram, uplink_packets
+from telesmooth.diagrams.visualization import save_meshcat_recording, start_meshcat_recording
 from telesmooth.smoothing.metrics import smoothing_metrics, tracking_errors
-from telesmooth.smoothing.validation import as_per_joint
+from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.systems.laser_tracker import tracker_record
 
 __all__ = ["ResponseErrors", "SimulationRecord", "plant_summary", "plant_text",
-           "response_delay_s", "response_errors", "response_instants", "run_duration_s", "run_metrics", "sample_at", "simulate",
+           "record_meshcat_html", "response_delay_s", "response_errors", "response_instants",
+           "run_duration_s", "run_metrics", "sample_at", "simulate",
            "tool_positions"]
 
 
@@ -386,4 +388,49 @@ def run_metrics(record: SimulationRecord) -> dict:
         },
         "link_deflection_rad": {"max_abs": np.abs(deflection).max(axis=0).tolist()},
         "plant": plant_summary(scenario, record.initial_position_rad),
+    }
+
+
+def record_meshcat_html(scenario, out_path, *, duration_s: float | None = None,
+                        port: int | None = None,
+                        progress: Callable[[str], None] | None = None) -> dict:
+    """Simulates ``scenario`` in one process with Meshcat recording; writes one offline HTML.
+
+    The chain is :func:`~telesmooth.diagrams.teleoperation.MakeTeleoperationDiagram` with a
+    localhost Meshcat; the workspace boxes and the commanded tool path are drawn as static
+    objects; the robot is recorded at 30 frames per simulated second. The HTML embeds
+    three.js, the scene and the animation (no external scripts), so it plays offline.
+
+    Args:
+        scenario: A :class:`~telesmooth.diagrams.scenario.Scenario` with a recorded or
+            synthetic haptic source (not ``"lcm"``).
+        out_path: The HTML file to write (parent folders are created).
+        duration_s: Simulated time, s; None = ``scenario.simulation_duration_s``, else the
+            operator recording's length + ``scenario.settle_s``.
+        port: Meshcat port on localhost; None = the first free port from 7000.
+        progress: Called with a one-line status message at each stage and every 10 % of the
+            run.
+
+    Returns:
+        Figures of the run: ``html_path``, ``html_bytes``, ``simulated_time_s``,
+        ``simulation_wall_time_s`` (simulation with recording on), ``wall_time_s`` (build,
+        simulate and write), ``frames`` (recorded animation frames), ``meshcat_url``.
+
+    Raises:
+        ValueError: if ``duration_s`` is not positive, or the scenario has no recording and
+            no ``simulation_duration_s``.
+    """
+    report = progress or (lambda message: None)
+    start = time.perf_counter()
+    meshcat = start_meshcat_recording(scenario, make_haptic_recording(scenario), port=port)
+    report(f"meshcat on {meshcat.web_url()}; simulating")
+    record = simulate(scenario, duration_s=duration_s, meshcat=meshcat, progress=report)
+    saved = save_meshcat_recording(meshcat, out_path, record.duration_s)
+    report(f"wrote {saved['html_path']} ({saved['html_bytes'] / 1e6:.2f} MB)")
+    return {
+        **saved,
+        "simulated_time_s": record.duration_s,
+        "simulation_wall_time_s": record.wall_time_s,
+        "wall_time_s": time.perf_counter() - start,
+        "meshcat_url": meshcat.web_url(),
     }

@@ -30,7 +30,7 @@ from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem
 from pydrake.systems.primitives import LogVectorOutput
 
 from telesmooth.datasets.haptic_recording import HapticRecording
-from telesmooth.diagrams.channels import (
+from telesmooth.lcm_types.channels import (
     ONBOARD_JOINT_STATUS,
     TELEOP_COLLISION_EVENT,
     TELEOP_HAPTIC_COMMAND,

@@ -5,9 +5,10 @@
 * :func:`draw_workspace` and :func:`draw_tool_path` draw what is *not* in that SceneGraph: the
   scenario's obstacles and bounding walls (they live only in the collision checker's rigid
   model) and the operator's commanded tool path. They are static Meshcat objects.
-* :func:`record_meshcat_html` runs the whole chain in one process with recording on and writes
+* :func:`start_meshcat_recording` and :func:`save_meshcat_recording` record a run and write
   Meshcat's self-contained ``StaticHtml()``: three.js, the scene and the animation are inline,
-  so the file opens offline from ``file://``.
+  so the file opens offline from ``file://``
+  (:func:`~telesmooth.diagrams.simulation.record_meshcat_html` runs the whole chain so).
 * :func:`diagram_svg` renders a built diagram with Graphviz (the ``dot`` program).
 
 Meshcat here always binds ``localhost`` (``MeshcatParams().host`` defaults to ``"*"``, all
@@ -18,9 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import shutil
-import time
 import warnings
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -53,7 +52,6 @@ __all__ = [
     "draw_tool_path",
     "draw_workspace",
     "local_meshcat",
-    "record_meshcat_html",
 ]
 
 ILLUSTRATION_PREFIX = "robot"
@@ -63,7 +61,7 @@ COLLISION_PREFIX = "collision"
 WORKSPACE_PATH = "workspace"
 """Meshcat path of the workspace boxes; one child per :class:`BoxObstacle` name."""
 TOOL_PATH_PATH = "commanded_tool_path"
-"""Meshcat path of the operator's commanded tool path drawn by :func:`record_meshcat_html`."""
+"""Meshcat path of the operator's commanded tool path drawn by :func:`start_meshcat_recording`."""
 
 # The collision checker's SDF uses the same red (alpha 0.6 obstacles, 0.15 walls).
 OBSTACLE_RGBA = Rgba(0.8, 0.2, 0.2, 0.6)
@@ -71,7 +69,7 @@ WALL_RGBA = Rgba(0.8, 0.2, 0.2, 0.15)
 TOOL_PATH_RGBA = Rgba(0.1, 0.4, 0.9, 1.0)
 
 FRAMES_PER_SECOND = 30.0
-"""Recording rate of :func:`record_meshcat_html`, frames per simulated second."""
+"""Recording rate of :func:`start_meshcat_recording`, frames per simulated second."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -200,54 +198,6 @@ def commanded_tool_points(recording) -> np.ndarray | None:
     if names[:2] == ("x_m", "y_m") and pose.shape[1] == 3:
         return np.vstack([pose[:, 0], pose[:, 1], np.zeros(pose.shape[0])])
     return None
-
-
-def record_meshcat_html(scenario, out_path, *, duration_s: float | None = None,
-                        port: int | None = None,
-                        progress: Callable[[str], None] | None = None) -> dict:
-    """Simulates ``scenario`` in one process with Meshcat recording; writes one offline HTML.
-
-    The chain is :func:`~telesmooth.diagrams.teleoperation.MakeTeleoperationDiagram` with a
-    localhost Meshcat; the workspace boxes and the commanded tool path are drawn as static
-    objects; the robot is recorded at 30 frames per simulated second. The HTML embeds
-    three.js, the scene and the animation (no external scripts), so it plays offline.
-
-    Args:
-        scenario: A :class:`~telesmooth.diagrams.scenario.Scenario` with a recorded or
-            synthetic haptic source (not ``"lcm"``).
-        out_path: The HTML file to write (parent folders are created).
-        duration_s: Simulated time, s; None = ``scenario.simulation_duration_s``, else the
-            operator recording's length + ``scenario.settle_s``.
-        port: Meshcat port on localhost; None = the first free port from 7000.
-        progress: Called with a one-line status message at each stage and every 10 % of the
-            run.
-
-    Returns:
-        Figures of the run: ``html_path``, ``html_bytes``, ``simulated_time_s``,
-        ``simulation_wall_time_s`` (simulation with recording on), ``wall_time_s`` (build,
-        simulate and write), ``frames`` (recorded animation frames), ``meshcat_url``.
-
-    Raises:
-        ValueError: if ``duration_s`` is not positive, or the scenario has no recording and
-            no ``simulation_duration_s``.
-    """
-    from telesmooth.diagrams.scenario import make_haptic_recording
-    from telesmooth.diagrams.simulation import simulate
-
-    report = progress or (lambda message: None)
-    start = time.perf_counter()
-    meshcat = start_meshcat_recording(scenario, make_haptic_recording(scenario), port=port)
-    report(f"meshcat on {meshcat.web_url()}; simulating")
-    record = simulate(scenario, duration_s=duration_s, meshcat=meshcat, progress=report)
-    saved = save_meshcat_recording(meshcat, out_path, record.duration_s)
-    report(f"wrote {saved['html_path']} ({saved['html_bytes'] / 1e6:.2f} MB)")
-    return {
-        **saved,
-        "simulated_time_s": record.duration_s,
-        "simulation_wall_time_s": record.wall_time_s,
-        "wall_time_s": time.perf_counter() - start,
-        "meshcat_url": meshcat.web_url(),
-    }
 
 
 def start_meshcat_recording(scenario, recording, *, port: int | None = None):

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import lcm
 
-from telesmooth.diagrams.channels import (
+from telesmooth.lcm_types.channels import (
     LCM_URL_SCHEMES,
     ONBOARD_JOINT_STATUS,
     TELEOP_JOINT_COMMAND,
@@ -305,7 +305,7 @@ def parse_link_option(option: str, text: str | None) -> LinkFaultConfig | None:
     """
     if text is None:
         return None
-    from telesmooth.diagrams.typed_yaml import load_yaml_text
+    from telesmooth.typed_yaml import load_yaml_text
     # Bounded plain data (size, nesting, aliases), string keys each given once.
     data = load_yaml_text(text, source=option)
     try:
@@ -314,13 +314,8 @@ def parse_link_option(option: str, text: str | None) -> LinkFaultConfig | None:
         raise ValueError(f"{option}: {error}") from None
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command line of the relay (``telesmooth link-relay``, ``python -m telesmooth.link.relay``).
-
-    Returns:
-        0 after a completed run. Bad arguments exit with status 2 and a message naming the
-        option and field.
-    """
+def build_parser() -> argparse.ArgumentParser:
+    """The options of ``telesmooth link-relay``."""
     parser = argparse.ArgumentParser(
         prog="telesmooth link-relay",
         description="Relay LCM traffic between two buses, applying link faults to the uplink.")
@@ -341,6 +336,17 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help=f"downlink channel (repeatable; default {ONBOARD_JOINT_STATUS})")
     parser.add_argument("--report", default=None, help="write the counts here as JSON")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command line of the relay (``telesmooth link-relay``, ``python -m telesmooth.link.relay``).
+
+    Returns:
+        0 after a completed run. Bad arguments exit with status 2 and a message naming the
+        option and field.
+    """
+    parser = build_parser()
     args = parser.parse_args(argv)
     if math.isnan(args.duration) or args.duration <= 0:
         parser.error(f"--duration = {args.duration!r} must be > 0 s")

@@ -87,7 +87,7 @@ from telesmooth.safety.stop import (
     plan_stop,
     stop_params,
 )
-from telesmooth.smoothing.validation import _joint_label, as_per_joint
+from telesmooth.arms.joint_vectors import _joint_label, as_per_joint
 
 __all__ = [
     "FdLimitRatios",

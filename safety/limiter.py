@@ -133,7 +133,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from telesmooth.smoothing.validation import _joint_label, as_per_joint, check_positive_scalar
+from telesmooth.arms.joint_vectors import _joint_label, as_per_joint, check_positive_scalar
 
 __all__ = [
     "DEFAULT_MARGIN",

@@ -525,12 +525,12 @@ def _step_text(step: float) -> str:
 
 
 def _experiment_scenario(shape: str, demo: int, time_step_s: float | None):
-    """The experiment's scenario of one demonstration (``diagrams.experiment``'s
+    """The experiment's scenario of one demonstration (``studies.experiment``'s
     ``experiment_scenario``) with the plant step given (None: the default plant)."""
     import dataclasses
     import zlib
 
-    from telesmooth.diagrams.experiment import ExperimentConfig
+    from telesmooth.studies.experiment import ExperimentConfig
     from telesmooth.diagrams.scenario import load_scenario
 
     base = load_scenario(scenario_name="Defaults")
@@ -548,8 +548,8 @@ def _experiment_scenario(shape: str, demo: int, time_step_s: float | None):
 def _experiment_cell(shape: str, demo: int, time_step_s: float | None) -> dict:
     """Every method on one demonstration, as the experiment runs each task (the IK pass once,
     as one worker does for the tasks of a demonstration it has already seen)."""
-    from telesmooth.diagrams.comparison import (
-        COMPARE_METHODS,
+    from telesmooth.smoothing.methods import METHODS
+    from telesmooth.studies.comparison import (
         operator_samples,
         prepare_comparison,
         run_method,
@@ -562,7 +562,7 @@ def _experiment_cell(shape: str, demo: int, time_step_s: float | None) -> dict:
     samples = operator_samples(scenario)
     ik_cpu_s = time.process_time() - started
     methods = {}
-    for method in COMPARE_METHODS:
+    for method in METHODS:
         wall, cpu = time.perf_counter(), time.process_time()
         setup = prepare_comparison(scenario, samples)
         run = run_method(setup, method)
@@ -579,7 +579,7 @@ def _experiment_cell(shape: str, demo: int, time_step_s: float | None) -> dict:
 
 def _experiment_c8_cell(shape: str) -> dict:
     """One C8 task (core only: Online-CKS over the shape's 7 demonstrations, twice)."""
-    from telesmooth.diagrams.experiment import ExperimentConfig, ExperimentTask, run_task
+    from telesmooth.studies.experiment import ExperimentConfig, ExperimentTask, run_task
     from telesmooth.diagrams.scenario import load_scenario
 
     base = load_scenario(scenario_name="Defaults")
@@ -615,7 +615,7 @@ def extrapolate_experiment(sample: list[dict], c8_cpu_s: dict, lengths: dict,
     recordings. Tasks are spread evenly over the workers (Dask's scheduling overhead and
     idle ends are not counted): wall ≈ CPU / workers.
     """
-    from telesmooth.diagrams.experiment import ExperimentConfig, make_tasks
+    from telesmooth.studies.experiment import ExperimentConfig, make_tasks
 
     config = ExperimentConfig(demos=tuple(range(7)))
     tasks = make_tasks(config)
@@ -756,14 +756,18 @@ def _table(offline, online, simulation=None, experiment=None) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The options of ``telesmooth bench``."""
     parser = argparse.ArgumentParser(prog="telesmooth bench",
                                      description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("out/bench"))
+    parser.add_argument("--out", type=Path, default=Path("out/bench"),
+                        help="report folder (default out/bench)")
     parser.add_argument("--max-n", type=int, default=100_000,
                         help="largest N of the Offline-CKS rows (10² … 10⁶; default 10⁵)")
-    parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--ticks", type=int, default=2000)
+    parser.add_argument("--repeat", type=int, default=3,
+                        help="timed repetitions of each row; the best is kept (default 3)")
+    parser.add_argument("--ticks", type=int, default=2000,
+                        help="online steps timed per row of the online smoothers (default 2000)")
     parser.add_argument("--max-drake-n", type=int, default=10_000,
                         help="largest N solved with the Drake MathematicalProgram too")
     parser.add_argument("--sim-duration", type=_number, default=None,
@@ -775,7 +779,11 @@ def main(argv=None) -> int:
                         help="LASA shapes (demonstration 0) of the experiment's sample "
                              f"(default {','.join(EXPERIMENT_SAMPLE)}; 'none' = skip; skipped "
                              "with --sim-duration 0 too)")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     for option, value in (("--max-n", args.max_n), ("--repeat", args.repeat),
                           ("--ticks", args.ticks), ("--max-drake-n", args.max_drake_n)):
         if value < 1:

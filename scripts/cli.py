@@ -29,7 +29,13 @@ from pathlib import Path
 
 
 from telesmooth.smoothing.kalman import START_PRIORS
-from telesmooth.smoothing.methods import METHODS, SmoothingSettings, smooth_recording
+from telesmooth.smoothing.methods import (
+    METHOD_ALIASES,
+    METHODS,
+    SmoothingSettings,
+    method_name,
+    smooth_recording,
+)
 from telesmooth.smoothing.metrics import smoothing_metrics
 from telesmooth.smoothing.model import DEFAULT_LAG, DEFAULT_R, DEFAULT_SIGMA
 from telesmooth.smoothing.offline import OFFLINE_CONSTRAINTS, OFFLINE_SOLVERS
@@ -43,8 +49,11 @@ from telesmooth.smoothing.reduced_q import (
     stored_operators,
 )
 from telesmooth.smoothing.trajectory_io import read_joint_csv, write_joint_csv
-from telesmooth.smoothing.validation import as_per_joint
+from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.user_input import name_fields, parse_plain_number, quote
+
+METHOD_CHOICES = METHODS + tuple(METHOD_ALIASES)
+"""What a ``--method`` option takes: every method of the registry and its aliases."""
 
 MAX_MESSAGE_CHARS = 300
 """Longest error line printed (a backstop: messages quote values short at their source)."""
@@ -119,7 +128,10 @@ def _add_smooth_parser(subparsers) -> None:
     )
     p.add_argument("input", type=Path, help="input CSV: header t,<joint names…>")
     p.add_argument("-o", "--output", type=Path, required=True, help="output CSV")
-    p.add_argument("--method", choices=METHODS, default="online-cks")
+    p.add_argument("--method", choices=METHOD_CHOICES, default="online-cks", metavar="METHOD",
+                   help="the smoothing method (default online-cks): " + ", ".join(METHODS)
+                   + "; pass-through is original; offline-cks-trajectory is offline-cks with "
+                   "--constraint trajectory --rest-at-end, as `compare` runs it")
     p.add_argument("--acc-max", type=parse_per_joint, required=True, metavar="A",
                    help="acceleration limit a_max [rad/s²]")
     p.add_argument("--jerk-max", type=parse_per_joint, required=True, metavar="J",
@@ -173,6 +185,7 @@ def _planar_fk(planar_forward_kinematics, link_lengths, q):
 def run_smooth(args) -> int:
     from telesmooth.atomic_files import Outputs
 
+    args.method = method_name(args.method, "--method")
     if (args.operator is None) != (args.sigma_store is None):
         raise ValueError("--operator and --sigma-store go together")
     if args.operator is not None and not args.operator.strip():
@@ -283,6 +296,10 @@ def _add_demo_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "demo",
         help="smooth a real human demonstration (LASA) with every method and write a report",
+        description="The main job, without the plant: one LASA handwriting demonstration (a "
+        "real person's hand motion) mapped onto the air-bearing arm, converted to joint "
+        "targets and sampled at the 4 Hz uplink rate, then smoothed by every method of the "
+        "registry; writes the CSVs, metrics.json, the figures and report.md into --out.",
     )
     p.add_argument("--out", type=Path, default=Path("out/demo"), help="report folder")
     p.add_argument("--shape", default="Angle", help="LASA shape (default Angle)")
@@ -389,6 +406,9 @@ def _add_simulate_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "simulate",
         help="run a scenario headless through the whole chain and write a report",
+        description="Run a scenario in one process through the whole chain (operator, IK, "
+        "FIFO, smoother, uplink, link, onboard robot and tracker) and write a report of what "
+        "happened (commands, limits, tracking errors, figures) into --out.",
     )
     _add_scenario_arguments(p)
     p.add_argument("--out", type=Path, default=Path("out/simulate"), help="report folder")
@@ -414,33 +434,37 @@ def run_simulate(args) -> int:
 
 
 def _add_compare_parser(subparsers) -> None:
-    from telesmooth.diagrams.comparison import COMPARE_METHODS
-
     p = subparsers.add_parser(
         "compare",
         help="every smoothing method on one scenario through the same plant (paper Table 2)",
+        description="Run every smoothing method (or those of --methods) on the scenario's "
+        "recorded session and play each method's commands through the same plant; write the "
+        "paper's Table 2 (limits, deformation, response error, P, latency) into --out.",
     )
     _add_scenario_arguments(p)
     p.add_argument("--out", type=Path, default=Path("out/compare"), help="report folder")
-    p.add_argument("--methods", default=",".join(COMPARE_METHODS),
-                   help="comma list of methods (default all: " + ",".join(COMPARE_METHODS)
+    p.add_argument("--methods", default=",".join(METHODS),
+                   help="comma list of methods (default all: " + ",".join(METHODS)
                    + "); original is always run, it is the reference of P")
     _add_offline_solver_argument(p)
     p.set_defaults(handler=run_compare)
 
 
 def _add_foresight_parser(subparsers) -> None:
-    from telesmooth.diagrams.comparison import COMPARE_METHODS
-
     p = subparsers.add_parser(
         "foresight",
         help="how much of a method's deformation needed foresight: the best continuation of "
              "its commands from every step-th sample, the whole future known",
+        description="For one method on the scenario's recording, the best continuation within "
+        "the limits of its first s commands for every --step-th s, knowing the whole future: "
+        "the part of the method's deformation that no rule could have avoided. Writes "
+        "foresight.json, the figure and report.md into --out.",
     )
     _add_scenario_arguments(p)
     p.add_argument("--out", type=Path, default=Path("out/foresight"), help="report folder")
-    p.add_argument("--method", choices=COMPARE_METHODS, default="online-hard",
-                   help="the method whose commands are continued (default online-hard)")
+    p.add_argument("--method", choices=METHOD_CHOICES, default="online-hard", metavar="METHOD",
+                   help="the method whose commands are continued (default online-hard): "
+                   + ", ".join(METHODS))
     p.add_argument("--step", type=int, default=4,
                    help="samples between two starts (default 4: every second at 4 Hz)")
     p.set_defaults(handler=run_foresight)
@@ -470,11 +494,9 @@ def _add_offline_solver_argument(p) -> None:
 def run_compare(args) -> int:
     from telesmooth.scripts.compare_report import write_comparison_report
 
-    from telesmooth.diagrams.comparison import COMPARE_METHODS
-
     scenario = _load_scenario(args)
     _check_run_length(scenario, None, uses_duration=False)
-    methods = _method_list(args.methods, COMPARE_METHODS)
+    methods = _method_list(args.methods, METHODS)
     with _scenario_outputs(args, scenario) as outputs:
         report = write_comparison_report(outputs.folder("--out", args.out), scenario,
                                          methods=methods, offline_solver=args.solver)
@@ -483,26 +505,26 @@ def run_compare(args) -> int:
 
 
 def _method_list(text: str, known) -> tuple:
-    """``--methods``: a comma list of known methods, at least one."""
-    from telesmooth.user_input import unknown_choice
-
+    """``--methods``: a comma list of known methods (or their aliases), at least one; the
+    registry's names."""
     methods = tuple(m.strip() for m in text.split(",") if m.strip())
     if not methods:
         raise ValueError(f"--methods = {quote(text)} names no method")
-    for method in methods:
-        if method not in known:
-            raise ValueError(unknown_choice("--methods", method, known, noun="methods"))
-    return methods
+    return tuple(method_name(method, "--methods", known) for method in methods)
 
 
 def _add_experiment_parser(subparsers) -> None:
-    from telesmooth.diagrams.experiment import EXPERIMENT_METHODS, KF_FORMS, ExperimentConfig
+    from telesmooth.studies.experiment import KF_FORMS, ExperimentConfig
 
     defaults = ExperimentConfig()
     p = subparsers.add_parser(
         "experiment",
         help="the paper's experiment on the LASA demonstrations: every method, the claims "
              "C1-C8, the Online-CKS sensitivity; on a Dask cluster",
+        description="The paper's experiment at scale: every method on LASA demonstrations "
+        "through the whole chain, the Online-CKS sensitivity study and claim C8, run as tasks "
+        "on a Dask cluster; records.jsonl in --out is a journal (a rerun continues it) and "
+        "the report judges the claims C1-C8 per plant and operator speed.",
     )
     _add_scenario_arguments(p)
     p.add_argument("--out", type=Path, default=Path("out/experiment"), help="report folder")
@@ -511,8 +533,8 @@ def _add_experiment_parser(subparsers) -> None:
     p.add_argument("--demos", default="0",
                    help="demonstrations of each shape: comma list of 0-6, or 'all' "
                         "(default 0; 'all' is the full grid of 210)")
-    p.add_argument("--methods", default=",".join(EXPERIMENT_METHODS),
-                   help="comma list of methods (default all: " + ",".join(EXPERIMENT_METHODS)
+    p.add_argument("--methods", default=",".join(METHODS),
+                   help="comma list of methods (default all: " + ",".join(METHODS)
                    + ")")
     p.add_argument("--sensitivity-shapes", default=",".join(defaults.sensitivity_shapes),
                    help="shapes of the Online-CKS sensitivity study ('none' to skip)")
@@ -586,7 +608,7 @@ def _number_list(text: str, option: str) -> tuple[float, ...]:
 
 
 def run_experiment_command(args) -> int:
-    from telesmooth.diagrams.experiment import EXPERIMENT_METHODS, ExperimentConfig
+    from telesmooth.studies.experiment import ExperimentConfig
     from telesmooth.scripts.experiment_report import (
         merge_experiment_reports,
         parse_demos,
@@ -612,7 +634,7 @@ def run_experiment_command(args) -> int:
         c8 = _shape_list(args.c8_shapes, "--c8-shapes")
     if not shapes:
         raise ValueError("--shapes names no shape")
-    methods = _method_list(args.methods, EXPERIMENT_METHODS)
+    methods = _method_list(args.methods, METHODS)
     plants = tuple(p.strip() for p in args.plants.split(",") if p.strip())
     try:
         config = ExperimentConfig(shapes=shapes, demos=parse_demos(args.demos), methods=methods,
@@ -649,16 +671,26 @@ def _add_bench_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "bench", add_help=False,
         help="the performance benchmark (Offline-CKS solvers vs RTS, online step vs Ruckig, "
-             "simulation real-time factors); --help lists its options")
+             "simulation real-time factors); --help lists its options",
+        description="The performance benchmark (its own options: telesmooth bench --help).")
     p.set_defaults(handler=None)  # main() hands `bench …` to bench_core before parsing
 
 
+_PROCESS_DESCRIPTIONS = {
+    "ground": "The ground station as its own process: the operator source, IK, FIFO, smoother "
+              "and the signed 4 Hz uplink published on LCM, the robot's telemetry received.",
+    "onboard": "The onboard robot as its own process: receives and checks the uplink "
+               "commands on LCM (signature, session, freshness), drives the flexible-joint "
+               "plant and publishes its telemetry.",
+}
+
+
 def _add_process_parsers(subparsers) -> None:
-    from telesmooth.diagrams.channels import DEFAULT_LCM_URL
+    from telesmooth.lcm_types.channels import DEFAULT_LCM_URL
 
     for name, text in (("ground", "run the ground station process (publishes the 4 Hz uplink)"),
                        ("onboard", "run the onboard robot process (subscribes to the uplink)")):
-        p = subparsers.add_parser(name, help=text)
+        p = subparsers.add_parser(name, help=text, description=_PROCESS_DESCRIPTIONS[name])
         _add_scenario_arguments(p)
         p.add_argument("--lcm-url", default=None,
                        help=f"LCM URL (default: the scenario's, {DEFAULT_LCM_URL})")
@@ -681,14 +713,20 @@ def _add_process_parsers(subparsers) -> None:
                                 "comes, the ground starts from the robot's commanded pose "
                                 "(a restart continues without a jump); 0 = do not wait")
         p.set_defaults(handler=run_process, process=name)
-    p = subparsers.add_parser("keygen", help="write a fresh uplink HMAC key file (mode 0600)")
+    p = subparsers.add_parser(
+        "keygen", help="write a fresh uplink HMAC key file (mode 0600)",
+        description="Write a fresh random HMAC key for the uplink to a new file (mode 0600; "
+        "never overwrites one). Give the same file to the ground and onboard processes with "
+        "--uplink-key.")
     p.add_argument("path", help="the key file to create (never overwritten; missing folders "
                                 "are made with mode 0700)")
     p.set_defaults(handler=run_keygen)
     p = subparsers.add_parser(
         "link-relay", add_help=False,
         help="relay the uplink between two LCM URLs through a fault model (delay, jitter, "
-             "loss, duplication, reordering, outages); --help lists its options")
+             "loss, duplication, reordering, outages); --help lists its options",
+        description="The LCM relay with link faults (its own options: telesmooth link-relay "
+        "--help).")
     p.set_defaults(handler=None)  # main() hands `link-relay …` to telesmooth.link.relay
 
 
@@ -704,7 +742,7 @@ def run_keygen(args) -> int:
 def run_process(args) -> int:
     from telesmooth.scripts.processes import run_ground, run_onboard
 
-    from telesmooth.diagrams.channels import check_lcm_url
+    from telesmooth.lcm_types.channels import check_lcm_url
 
     scenario = _load_scenario(args)
     url = check_lcm_url("--lcm-url" if args.lcm_url else "lcm_url (scenario)",
@@ -740,6 +778,20 @@ def run_process(args) -> int:
                            realtime=args.realtime, out=out, uplink_key=key)
 
 
+def package_version() -> str:
+    """The installed package's version (``importlib.metadata``); from a source tree that is
+    not installed, the version in its ``pyproject.toml``."""
+    from importlib import metadata
+
+    try:
+        return metadata.version("telesmooth")
+    except metadata.PackageNotFoundError:
+        import tomllib
+
+        pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+        return tomllib.loads(pyproject.read_text(encoding="utf-8"))["project"]["version"]
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="telesmooth",
@@ -747,6 +799,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=f"{DEBUG_FLAG} (anywhere on the command line): on an unexpected error, print "
                "the full traceback instead of one line.",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}",
+                        help="print the package version and exit")
     parser.add_argument(DEBUG_FLAG, action="store_true",
                         help="print the traceback of an unexpected error")
     subparsers = parser.add_subparsers(dest="command", required=True)

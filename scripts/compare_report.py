@@ -1,7 +1,7 @@
 """`telesmooth compare`: the paper's Table 2 for one scenario, every method through one plant.
 
 Output folder:
-    comparison.json  per method: every docs/method.md §6 figure (diagrams.comparison), the table rows,
+    comparison.json  per method: every docs/method.md §6 figure (studies.comparison), the table rows,
                      and the scenario summary
     packets.csv      the packet each method sent at every 4 Hz tick (positions per joint)
     table.md         the Table 2 rows alone (Markdown)
@@ -21,8 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from telesmooth.atomic_files import atomic_write, write_text
-from telesmooth.diagrams.comparison import (
-    COMPARE_METHODS,
+from telesmooth.studies.comparison import (
     LEAST_DEFORMATION,
     Comparison,
     compare_methods,
@@ -31,6 +30,7 @@ from telesmooth.diagrams.scenario import describe_operator
 from telesmooth.diagrams.simulation import plant_text, tool_positions
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.scripts.formatting import limit_ratio
+from telesmooth.smoothing.methods import METHODS
 from telesmooth.smoothing.metrics import finite_differences
 from telesmooth.smoothing.offline import HISTORY_LENGTH, with_rest_history
 
@@ -245,7 +245,7 @@ def _report_text(comparison: Comparison, rows, figures, plant: dict) -> str:
         "",
         table,
         "",
-        "How to read it (docs/method.md §6; definitions in `telesmooth.diagrams.comparison`):",
+        "How to read it (docs/method.md §6; definitions in `telesmooth.studies.comparison`):",
         "",
         "- FD acc/jerk: finite differences of the packets as the plant receives them (start "
         "pose before, last packet held after), worst joint; *over* is the share of samples "
@@ -268,7 +268,7 @@ def _report_text(comparison: Comparison, rows, figures, plant: dict) -> str:
     return "\n".join(lines)
 
 
-def write_comparison_report(out_dir, scenario, *, methods=COMPARE_METHODS,
+def write_comparison_report(out_dir, scenario, *, methods=METHODS,
                             progress=_log, offline_solver="drake") -> Path:
     """Runs :func:`compare_methods` and writes the report folder; returns report.md's path."""
     out = Path(out_dir)

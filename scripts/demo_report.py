@@ -25,7 +25,7 @@ from telesmooth.atomic_files import write_text
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_forward_kinematics
 from telesmooth.datasets.lasa import lasa_operator_session
 from telesmooth.scripts.figures import FigureWriter
-from telesmooth.smoothing.methods import SmoothingSettings, smooth_recording
+from telesmooth.smoothing.methods import METHODS, SmoothingSettings, smooth_recording
 from telesmooth.smoothing.metrics import smoothing_metrics
 from telesmooth.smoothing.model import DEFAULT_DT_S
 from telesmooth.smoothing.trajectory_io import write_joint_csv
@@ -35,17 +35,33 @@ DEMO_MAX_ACCELERATION = 0.05
 DEMO_MAX_JERK = 0.1
 """j_max for every joint [rad/s³] (docs/method.md §8 placeholder)."""
 
-# (label, method, settings overrides): every method of docs/method.md §7, Offline-CKS in both modes.
-RUNS = (
-    ("original", "original", {}),
-    ("kf", "kf", {}),
-    ("kf-predictor", "kf-predictor", {}),
-    ("offline-ks", "offline-ks", {}),
-    ("offline-cks (state)", "offline-cks", {"constraint": "state"}),
-    ("offline-cks (trajectory)", "offline-cks", {"constraint": "trajectory"}),
-    ("bmfls", "bmfls", {}),
-    ("online-cks (1st operation)", "online-cks", {}),
-)
+# How the demo shows a method of the registry: (label, method, settings overrides) runs. Plain
+# Offline-CKS runs in both modes of docs/method.md §7 (without the terminal rest that
+# offline-cks-trajectory adds); Online-CKS runs a second operation too (below); every other
+# method is one run under its own name.
+_DEMO_RUNS = {
+    "offline-cks": (("offline-cks (state)", "offline-cks", {"constraint": "state"}),
+                    ("offline-cks (trajectory)", "offline-cks", {"constraint": "trajectory"})),
+    "online-cks": (("online-cks (1st operation)", "online-cks", {}),),
+}
+
+
+def _ruckig_available() -> bool:
+    """The ``ruckig`` peer needs the optional ``ruckig`` package (``telesmooth[bench]``)."""
+    import importlib.util
+
+    return importlib.util.find_spec("ruckig") is not None
+
+
+def demo_runs(methods=METHODS) -> tuple:
+    """The demo's (label, method, settings overrides) runs: every method of the registry
+    (``ruckig`` only when its package is installed)."""
+    return tuple(run for method in methods
+                 if method != "ruckig" or _ruckig_available()
+                 for run in _DEMO_RUNS.get(method, ((method, method, {}),)))
+
+
+RUNS = demo_runs()
 
 
 def sample_and_hold(t_s, values, period_s):

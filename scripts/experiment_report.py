@@ -31,15 +31,15 @@ import numpy as np
 
 from telesmooth.atomic_files import write_text
 from telesmooth.user_input import MAX_JSON_BYTES, read_file_bytes
-from telesmooth.diagrams.claims import (
+from telesmooth.studies.claims import (
     APPROXIMATE_LIMIT,
     C1_QUANTILE,
     PAIRED_SHARE,
     check_claims,
     summarize_cells,
 )
-from telesmooth.diagrams.comparison import LEAST_DEFORMATION
-from telesmooth.diagrams.experiment import ExperimentConfig, make_tasks, run_experiment
+from telesmooth.studies.comparison import LEAST_DEFORMATION
+from telesmooth.studies.experiment import ExperimentConfig, make_tasks, run_experiment
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.scripts.formatting import limit_ratio
 
@@ -384,7 +384,7 @@ MAX_RECORDS_BYTES = 512 << 20
 """Largest records.jsonl read, bytes."""
 
 
-READS_RECORDS_ONLY = ("scripts", "tests", "docs", "diagrams/claims.py")
+READS_RECORDS_ONLY = ("scripts", "tests", "docs", "studies/claims.py")
 """Parts of the package that only read records (the reports, the claims): changing them does
 not change a record, so a finished grid can be reported again with them."""
 

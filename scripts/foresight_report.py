@@ -27,11 +27,11 @@ from pathlib import Path
 import numpy as np
 
 from telesmooth.atomic_files import write_text
-from telesmooth.diagrams.comparison import COMPARE_METHODS, method_settings, operator_samples
+from telesmooth.studies.comparison import method_settings, operator_samples
 from telesmooth.diagrams.simulation import tool_positions
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.smoothing.foresight import foresight_sweep
-from telesmooth.smoothing.methods import smooth_recording
+from telesmooth.smoothing.methods import METHOD_ALIASES, METHODS, method_name, smooth_recording
 from telesmooth.smoothing.metrics import cartesian_deformation, finite_differences
 from telesmooth.smoothing.offline import HISTORY_LENGTH, with_rest_history
 
@@ -61,8 +61,9 @@ def foresight_study(scenario, method: str = "online-hard", *, step: int = 4,
         ValueError: an unknown method, a bad step, a scenario without a recording.
         RuntimeError: the method failed.
     """
-    if method not in COMPARE_METHODS:
-        raise ValueError(f"method = {method!r} must be one of {COMPARE_METHODS}")
+    if not isinstance(method, str) or (method not in METHODS and method not in METHOD_ALIASES):
+        raise ValueError(f"method = {method!r} must be one of {METHODS}")
+    method = method_name(method)
     if isinstance(step, bool) or not isinstance(step, int) or step < 1:
         raise ValueError(f"step = {step!r} must be an integer >= 1")
     samples = operator_samples(scenario)

@@ -97,7 +97,7 @@ def robot_telemetry(lcm_url: str, scenario, wait_s: float) -> RobotTelemetry | N
     the arm's joint count, within its joint limits)."""
     import lcm as lcm_module
 
-    from telesmooth.diagrams.channels import ONBOARD_JOINT_STATUS
+    from telesmooth.lcm_types.channels import ONBOARD_JOINT_STATUS
     from telesmooth.lcm_types import decode_exact, lcmt_onboard_joint_status
 
     arm = scenario.arm_description
@@ -224,7 +224,7 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
     from telesmooth.systems.laser_tracker import tracker_record
     from telesmooth.systems.link_guard import GUARD_MODES
 
-    from telesmooth.diagrams.channels import TELEOP_JOINT_COMMAND
+    from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
     from telesmooth.link.udpm_receiver import UdpmReceiver
 
     scenario = _with_authentication(scenario, uplink_key)

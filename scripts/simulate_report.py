@@ -33,7 +33,7 @@ from telesmooth.diagrams.simulation import (
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.scripts.formatting import limit_ratio
 from telesmooth.smoothing.metrics import finite_differences
-from telesmooth.smoothing.validation import as_per_joint
+from telesmooth.arms.joint_vectors import as_per_joint
 
 __all__ = ["write_simulation_report"]
 

@@ -42,9 +42,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from telesmooth.smoothing.model import MAX_LAG, SCALED_TRANSITION, STATE_SIZE, JerkModel
-from telesmooth.smoothing.validation import check_positive_int, check_trajectory
+from telesmooth.arms.joint_vectors import check_positive_int, check_trajectory
 
-FIXED_LAG_METHODS = ("recursion", "superstate")
+FIXED_LAG_FORMS = ("recursion", "superstate")
+"""The two forms of the fixed-lag smoother (its ``method`` argument); the fixed-lag *smoothing
+methods* are :data:`telesmooth.smoothing.methods.FIXED_LAG_METHODS`."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,8 +83,8 @@ class FixedLagSmoother:
         method: str = "recursion",
         rest_covariance=None,
     ):
-        if method not in FIXED_LAG_METHODS:
-            raise ValueError(f"method = {method!r} must be one of {FIXED_LAG_METHODS}")
+        if method not in FIXED_LAG_FORMS:
+            raise ValueError(f"method = {method!r} must be one of {FIXED_LAG_FORMS}")
         self.model = model
         self.lag = check_positive_int("lag", lag, minimum=0)
         if self.lag > MAX_LAG:

@@ -39,7 +39,7 @@ import numpy as np
 from pydrake.solvers import ClarabelSolver, MathematicalProgram, QuadraticCost, SolverOptions
 
 from telesmooth.smoothing.offline import finite_difference_operator
-from telesmooth.smoothing.validation import _joint_label, as_per_joint, check_trajectory
+from telesmooth.arms.joint_vectors import _joint_label, as_per_joint, check_trajectory
 
 __all__ = ["ContinuationResult", "ForesightSweep", "best_continuation", "foresight_sweep"]
 

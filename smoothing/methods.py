@@ -6,11 +6,14 @@ after which the ground station sends it:
 =================  ==============================================  ===========================
 method             estimate of sample k                            sent after
 =================  ==============================================  ===========================
-``original``       z_k                                             0
+``original``       z_k (alias ``pass-through``, the chain's name)   0
 ``kf``             x̂_{k|k}, the a-posteriori Kalman filter          0 (with filter phase lag)
 ``kf-predictor``   x̂_{k|k−1}, the one-step predictor                0
 ``offline-ks``     RTS over the whole recording                    offline (replayed from t_0)
 ``offline-cks``    Offline-CKS, Drake MathematicalProgram          offline (replayed from t_0)
+``offline-cks-     Offline-CKS with hard FD limits and rest at     offline (replayed from t_0)
+trajectory``       the end (``constraint="trajectory"``,
+                   ``rest_at_end``: :func:`method_variant`)
 ``offline-hard``   closest to z within hard FD limits (not a       offline (replayed from t_0)
                    smoother: the least deformation the limits
                    force; smoothing.offline_hard)
@@ -31,7 +34,7 @@ or the paper's "loose" one); the Kalman filters keep the paper's prior diag(r, 1
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -49,17 +52,67 @@ from telesmooth.smoothing.offline import solve_offline_cks
 from telesmooth.smoothing.offline_hard import solve_offline_hard
 from telesmooth.smoothing.reduced_q import OnlineCks, ReducedQConfig
 from telesmooth.smoothing.ruckig_stream import ruckig_stream
-from telesmooth.smoothing.validation import (
+from telesmooth.arms.joint_vectors import (
     as_per_joint,
     check_positive_int,
     check_positive_scalar,
     check_trajectory,
 )
 
-METHODS = ("original", "kf", "kf-predictor", "offline-ks", "offline-cks", "offline-hard", "bmfls",
-           "online-cks", "online-hard", "ruckig")
+METHODS = ("original", "kf", "kf-predictor", "offline-ks", "offline-cks",
+           "offline-cks-trajectory", "offline-hard", "bmfls", "online-cks", "online-hard",
+           "ruckig")
+"""Every smoothing method, in the order of the paper's Table 2: the one registry that
+``telesmooth smooth``, ``compare``, ``foresight``, ``experiment`` and ``demo`` and the
+scenario's ``smoother.method`` read (each command takes the names of :data:`METHOD_ALIASES`
+too)."""
+
+METHOD_ALIASES = {"pass-through": "original"}
+"""Other names of a method: the online chain's ``pass-through`` (no smoothing, the raw
+samples with the chain's latency) is ``original``."""
+
 FIXED_LAG_METHODS = ("bmfls", "online-cks", "online-hard")
-OFFLINE_METHODS = ("offline-ks", "offline-cks", "offline-hard")
+"""The methods that send sample k after L samples (the fixed-lag smoothers; the forms of the
+smoother itself are :data:`telesmooth.smoothing.fixed_lag.FIXED_LAG_FORMS`)."""
+
+OFFLINE_METHODS = ("offline-ks", "offline-cks", "offline-cks-trajectory", "offline-hard")
+"""The methods that need the whole recording."""
+
+CHAIN_METHODS = ("original", "bmfls", "online-cks", "online-hard")
+"""The methods the online chain's smoother runs (a scenario's ``smoother.method``; also
+by their aliases)."""
+
+
+def method_name(method, field: str = "method", known=METHODS) -> str:
+    """The registry's name of ``method`` (an alias of :data:`METHOD_ALIASES` resolved).
+
+    Args:
+        method: A name of ``known`` or an alias of one.
+        field: The option or field named in the error.
+        known: The names accepted (default every method).
+
+    Raises:
+        ValueError: For another name (the closest names, then the list).
+    """
+    from telesmooth.user_input import unknown_choice
+
+    name = METHOD_ALIASES.get(method, method) if isinstance(method, str) else method
+    if name not in known:
+        raise ValueError(unknown_choice(field, method, tuple(known) + tuple(
+            alias for alias, target in METHOD_ALIASES.items() if target in known),
+            noun="methods"))
+    return name
+
+
+def method_variant(method: str, settings: "SmoothingSettings") -> tuple[str, "SmoothingSettings"]:
+    """The :func:`smooth_recording` computation behind a method name: ``offline-cks-trajectory``
+    is ``offline-cks`` with ``constraint="trajectory"`` and ``rest_at_end`` (docs/method.md
+    §2.6; the offline mode's default); every other method is itself, ``settings`` unchanged.
+    """
+    method = method_name(method)
+    if method == "offline-cks-trajectory":
+        return "offline-cks", replace(settings, constraint="trajectory", rest_at_end=True)
+    return method, settings
 
 
 @dataclass(frozen=True)
@@ -142,7 +195,8 @@ def smooth_recording(
     Args:
         positions: the operator's joint samples z_k, shape (N, num_joints) [rad].
         dt_s: sample period [s].
-        method: one of METHODS.
+        method: one of METHODS, or an alias (METHOD_ALIASES); ``offline-cks-trajectory``
+            replaces ``settings.constraint`` and ``settings.rest_at_end`` (:func:`method_variant`).
         settings: limits and tuning.
         joint_names: labels for error messages and per-name settings.
         sigma0: Online-CKS only: the operator's stored σ (overrides settings.sigma as σ_0).
@@ -151,8 +205,9 @@ def smooth_recording(
         ValueError: unknown method or invalid input/settings (naming the field and joint).
         RuntimeError: Offline-CKS did not solve (with the solver's status).
     """
-    if method not in METHODS:
+    if not isinstance(method, str) or (method not in METHODS and method not in METHOD_ALIASES):
         raise ValueError(f"method = {method!r} must be one of {METHODS}")
+    name, (method, settings) = method_name(method), method_variant(method, settings)
     if settings.start_prior not in START_PRIORS:
         raise ValueError(f"start_prior = {settings.start_prior!r} must be one of {START_PRIORS}")
     z = check_trajectory("positions", positions, joint_names=joint_names, min_samples=2)
@@ -167,14 +222,14 @@ def smooth_recording(
     model = JerkModel.make(dt_s, settings.sigma, settings.r, num_joints=num_joints,
                            joint_names=joint_names)
     if method == "original":
-        return SmoothedRecording(method, z.copy(), None, 0.0)
+        return SmoothedRecording(name, z.copy(), None, 0.0)
     if method in ("kf", "kf-predictor"):
         result = kalman_filter(z, model, rest_prior(z[0], model))
         states = result.filtered_mean if method == "kf" else result.predicted_mean
-        return SmoothedRecording(method, states[:, :, 0].copy(), states, 0.0)
+        return SmoothedRecording(name, states[:, :, 0].copy(), states, 0.0)
     if method == "offline-ks":
         states = rts_smoother(z, model, start_prior(settings.start_prior, z[0], model)).mean
-        return SmoothedRecording(method, states[:, :, 0].copy(), states, 0.0,
+        return SmoothedRecording(name, states[:, :, 0].copy(), states, 0.0,
                                  details={"start_prior": settings.start_prior})
     if method == "offline-cks":
         result = solve_offline_cks(
@@ -202,7 +257,7 @@ def smooth_recording(
                 f"Offline-CKS failed: {dict(zip(joint_names or range(num_joints), result.solution_results))}; "
                 f"violated constraints: {result.infeasible_constraints}"
             )
-        return SmoothedRecording(method, result.states[:, :, 0].copy(), result.states, 0.0,
+        return SmoothedRecording(name, result.states[:, :, 0].copy(), result.states, 0.0,
                                  details=details)
     if method == "offline-hard":
         # The least deformation the limits allow: the samples moved only where the FD limits
@@ -215,7 +270,7 @@ def smooth_recording(
             raise RuntimeError(
                 f"offline-hard failed: {dict(zip(joint_names or range(num_joints), hard.status))}")
         states = finite_difference_states(hard.positions, z[0], dt_s)
-        return SmoothedRecording(method, hard.positions.copy(), states, 0.0,
+        return SmoothedRecording(name, hard.positions.copy(), states, 0.0,
                                  details={"status": list(hard.status),
                                           "iterations": hard.iterations.tolist()})
     if method == "ruckig":
@@ -224,7 +279,7 @@ def smooth_recording(
                                target=settings.ruckig_target,
                                synchronization=settings.ruckig_synchronization,
                                joint_names=joint_names)
-        return SmoothedRecording(method, states[:, :, 0].copy(), states, 0.0,
+        return SmoothedRecording(name, states[:, :, 0].copy(), states, 0.0,
                                  details={"target": settings.ruckig_target,
                                           "synchronization": settings.ruckig_synchronization})
     # Fixed-lag methods: the operator holds the last pose for L more samples.
@@ -232,7 +287,7 @@ def smooth_recording(
     if method == "bmfls":
         outputs = FixedLagSmoother(model, lag=lag, method=settings.fixed_lag_method).run(padded)
         states = outputs[lag:]
-        return SmoothedRecording(method, states[:, :, 0].copy(), states, lag * dt_s,
+        return SmoothedRecording(name, states[:, :, 0].copy(), states, lag * dt_s,
                                  details={"lag": lag})
     online = OnlineCks(
         model,
@@ -261,7 +316,7 @@ def smooth_recording(
         details["limited_max_abs_rad"] = np.abs(positions - run.outputs[lag:, :, 0]).max(
             axis=0).tolist()
     return SmoothedRecording(
-        method, states[:, :, 0].copy(), states, lag * dt_s,
+        name, states[:, :, 0].copy(), states, lag * dt_s,
         sigma=run.sigma[lag:], final_sigma=run.final_state.sigma.copy(), details=details)
 
 

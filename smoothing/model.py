@@ -22,7 +22,7 @@ from math import factorial
 
 import numpy as np
 
-from telesmooth.smoothing.validation import (
+from telesmooth.arms.joint_vectors import (
     as_per_joint,
     check_positive_scalar,
 )

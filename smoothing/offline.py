@@ -60,7 +60,7 @@ from telesmooth.smoothing.model import (
     UNIT_PROCESS_PRECISION,
     JerkModel,
 )
-from telesmooth.smoothing.validation import as_per_joint, check_positive_int, check_trajectory
+from telesmooth.arms.joint_vectors import as_per_joint, check_positive_int, check_trajectory
 
 OFFLINE_CONSTRAINTS = ("state", "trajectory", "both", "none")
 OFFLINE_SOLVERS = ("drake", "banded-ip")

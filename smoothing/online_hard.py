@@ -29,7 +29,7 @@ from telesmooth.safety.limiter import (
     stoppable_polygon,
 )
 from telesmooth.safety.state_codec import VectorCodec
-from telesmooth.smoothing.validation import _joint_label, check_trajectory
+from telesmooth.arms.joint_vectors import _joint_label, check_trajectory
 
 __all__ = [
     "DEFAULT_MARGIN",

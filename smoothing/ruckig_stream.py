@@ -18,7 +18,7 @@ import re
 
 import numpy as np
 
-from telesmooth.smoothing.validation import as_per_joint, check_positive_scalar, check_trajectory
+from telesmooth.arms.joint_vectors import as_per_joint, check_positive_scalar, check_trajectory
 from telesmooth.user_input import quote
 
 __all__ = ["RUCKIG_SYNCHRONIZATIONS", "RUCKIG_TARGETS", "UNLIMITED_VELOCITY", "ruckig_stream"]

@@ -21,7 +21,7 @@ from telesmooth.safety.stop import (
     StopPlan,
     stop_params,
 )
-from telesmooth.smoothing.validation import as_per_joint
+from telesmooth.arms.joint_vectors import as_per_joint
 
 __all__ = [
     "STOP_OUTCOMES",

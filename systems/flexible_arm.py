@@ -30,10 +30,9 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import MatrixGain
 
 from telesmooth.arms.description import (
-    AIR_BEARING_ARM_3DOF,
+    ARMS,
     DRIVE_FIELDS,
     PLANT_PRESETS,
-    SPACE_ARM_6DOF,
     ArmDescription,
     drive_preset,
     with_drive,
@@ -46,7 +45,6 @@ from telesmooth.systems.command_interpolator import (
 from telesmooth.systems.laser_tracker import LaserTracker, LaserTrackerConfig
 
 __all__ = [
-    "ARM_DESCRIPTIONS",
     "DISCRETE_CONTACT_APPROXIMATIONS",
     "DriveConfig",
     "FlexibleArmConfig",
@@ -54,11 +52,6 @@ __all__ = [
     "desired_state_permutation",
 ]
 
-ARM_DESCRIPTIONS: dict[str, ArmDescription] = {
-    "space_arm": SPACE_ARM_6DOF,
-    "air_bearing_arm": AIR_BEARING_ARM_3DOF,
-}
-"""The arms that :attr:`FlexibleArmConfig.arm` can name."""
 
 DISCRETE_CONTACT_APPROXIMATIONS = ("lagged", "sap", "similar")
 """The values of ``MultibodyPlantConfig.discrete_contact_approximation`` that we accept: the
@@ -106,7 +99,7 @@ class DriveConfig:
             ValueError: naming the field (``drive.<field>``), the joint and the value, if a
                 value is not a positive finite number or the joint count does not match.
         """
-        from telesmooth.smoothing.validation import as_per_joint
+        from telesmooth.arms.joint_vectors import as_per_joint
 
         arm = drive_preset(arm, self.preset)
         values = {}
@@ -159,9 +152,9 @@ class FlexibleArmConfig:
     initial_position_rad: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
-        if self.arm not in ARM_DESCRIPTIONS:
+        if self.arm not in ARMS:
             raise ValueError(
-                f"FlexibleArmConfig.arm = {self.arm!r} must be one of {tuple(ARM_DESCRIPTIONS)}")
+                f"FlexibleArmConfig.arm = {self.arm!r} must be one of {tuple(ARMS)}")
         step = self.time_step_s
         if isinstance(step, bool) or not isinstance(step, (int, float)) \
                 or not math.isfinite(step) or step < 0.0:
@@ -190,7 +183,7 @@ class FlexibleArmConfig:
             raise ValueError(
                 f"FlexibleArmConfig.drive = {self.drive!r} must be a DriveConfig")
         if self.initial_position_rad is not None:
-            arm = ARM_DESCRIPTIONS[self.arm]
+            arm = ARMS[self.arm]
             q0 = _float_tuple("FlexibleArmConfig.initial_position_rad",
                               self.initial_position_rad)
             if len(q0) != arm.num_joints:
@@ -212,7 +205,7 @@ class FlexibleArmConfig:
         Raises:
             ValueError: if a drive value does not fit the arm (see :meth:`DriveConfig.apply`).
         """
-        return self.drive.apply(ARM_DESCRIPTIONS[self.arm])
+        return self.drive.apply(ARMS[self.arm])
 
 
 def _float_tuple(field: str, values) -> tuple[float, ...]:

@@ -17,6 +17,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from telesmooth.smoothing.kalman import START_PRIORS
+from telesmooth.smoothing.methods import CHAIN_METHODS, METHOD_ALIASES, method_name
 from telesmooth.safety.limiter import limiter_params, limiter_rest_state, limiter_step
 from telesmooth.safety.state_codec import VectorCodec
 from telesmooth.smoothing.model import (
@@ -29,12 +30,16 @@ from telesmooth.smoothing.model import (
 )
 from telesmooth.smoothing.reduced_q import OnlineCks, ReducedQConfig
 from telesmooth.smoothing.state_vector import OnlineCksStateVector
-from telesmooth.smoothing.validation import as_per_joint
+from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.systems.timing import check_period
 
 __all__ = ["ONLINE_SMOOTHER_METHODS", "ReducedQSmoother", "ReducedQSmootherConfig"]
 
-ONLINE_SMOOTHER_METHODS = ("online-cks", "bmfls", "pass-through", "online-hard")
+ONLINE_SMOOTHER_METHODS = CHAIN_METHODS + tuple(
+    alias for alias, method in METHOD_ALIASES.items() if method in CHAIN_METHODS)
+"""The names :attr:`ReducedQSmootherConfig.method` takes: the registry's
+:data:`~telesmooth.smoothing.methods.CHAIN_METHODS` and their aliases (``pass-through`` is
+``original``)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,7 +48,8 @@ class ReducedQSmootherConfig:
 
     Attributes:
         method: ``"online-cks"`` (BMFLS + reduced-Q, default), ``"bmfls"`` (fixed σ),
-            ``"pass-through"`` (no smoothing: the raw z_{k−L}, with the same latency), or
+            ``"pass-through"`` (also ``"original"``, its name in the method registry: no
+            smoothing, the raw z_{k−L}, with the same latency), or
             ``"online-hard"`` (Online-CKS through the hard limiter of
             :mod:`telesmooth.smoothing.online_hard`: the FD acceleration and jerk of the sent
             commands never exceed the limits, which must then be finite).
@@ -76,7 +82,7 @@ class ReducedQSmootherConfig:
     def __post_init__(self) -> None:
         if self.start_prior not in START_PRIORS:
             raise ValueError(f"start_prior = {self.start_prior!r} must be one of {START_PRIORS}")
-        if self.method not in ONLINE_SMOOTHER_METHODS:
+        if not isinstance(self.method, str) or self.method not in ONLINE_SMOOTHER_METHODS:
             raise ValueError(
                 f"ReducedQSmootherConfig.method = {self.method!r} must be one of "
                 f"{ONLINE_SMOOTHER_METHODS}"
@@ -281,7 +287,7 @@ class ReducedQSmoother(LeafSystem):
             raw = np.tile(z, (lag + 1, 1))
         new_state, output, triggered = self._online.step(state, z)
         new_raw = np.vstack([raw[1:], z[None, :]])
-        if self._config.method == "pass-through":
+        if method_name(self._config.method) == "original":   # pass-through
             output = np.zeros((n, STATE_SIZE))
             output[:, 0] = new_raw[0]
         new_limiter = None

@@ -16,7 +16,7 @@ import time
 import numpy as np
 import pytest
 
-from telesmooth.diagrams.channels import TELEOP_JOINT_COMMAND
+from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.lcm_types import lcmt_teleop_joint_command
 from telesmooth.link.udpm_receiver import MAX_INCOMPLETE_MESSAGES, UdpmReceiver
 

@@ -22,7 +22,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from telesmooth.datasets.haptic_recording import read_haptic_csv, read_haptic_npz
-from telesmooth.diagrams.typed_yaml import load_yaml_text
+from telesmooth.typed_yaml import load_yaml_text
 from telesmooth.link.auth import load_key
 from telesmooth.smoothing.reduced_q import stored_operators
 from telesmooth.smoothing.trajectory_io import read_joint_csv

@@ -12,7 +12,7 @@ import pytest
 from bad_input_helpers import assert_one_line_error, run, snapshot
 
 from telesmooth.diagrams.scenario import load_scenario
-from telesmooth.diagrams.typed_yaml import load_yaml_text
+from telesmooth.typed_yaml import load_yaml_text
 
 
 @pytest.mark.parametrize("text, words", [

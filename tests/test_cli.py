@@ -477,3 +477,75 @@ def test_a_solver_that_gives_up_exits_2_naming_the_joints_and_writes_nothing(
     assert "Offline-CKS failed" in stderr and "banded-ip: max_iterations" in stderr
     assert len(stderr.strip().splitlines()) == 1
     assert not out.exists()
+
+
+# --- the command line describes itself ---
+
+
+def _walk(parser, path=("telesmooth",)):
+    """Every (command path, parser) below ``parser``, itself first."""
+    import argparse
+
+    yield path, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _walk(sub, path + (name,))
+
+
+def _parsers():
+    from telesmooth.link.relay import build_parser as relay_parser
+    from telesmooth.scripts.bench_core import build_parser as bench_parser
+    from telesmooth.scripts.cli import build_parser
+
+    yield from _walk(build_parser())
+    yield ("telesmooth", "bench"), bench_parser()
+    yield ("telesmooth", "link-relay"), relay_parser()
+
+
+def test_every_command_has_a_description_and_every_option_a_help_text():
+    import argparse
+
+    missing = []
+    for path, parser in _parsers():
+        if not (parser.description or "").strip():
+            missing.append(f"{' '.join(path)}: no description")
+        for action in parser._actions:
+            if isinstance(action, (argparse._SubParsersAction, argparse._HelpAction)):
+                continue
+            if not (action.help or "").strip() or action.help == argparse.SUPPRESS:
+                name = "/".join(action.option_strings) or action.dest
+                missing.append(f"{' '.join(path)} {name}: no help text")
+    assert not missing, missing
+
+
+def test_version_prints_the_package_version(capsys):
+    import tomllib
+    from importlib import metadata
+
+    from telesmooth.scripts.cli import package_version
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--version"])
+    assert exit_info.value.code == 0
+    assert capsys.readouterr().out == f"telesmooth {package_version()}\n"
+    try:
+        expected = metadata.version("telesmooth")
+    except metadata.PackageNotFoundError:
+        expected = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml")
+                                 .read_text())["project"]["version"]
+    assert package_version() == expected
+
+
+def test_version_falls_back_to_pyproject_when_not_installed(monkeypatch):
+    import tomllib
+    from importlib import metadata
+
+    from telesmooth.scripts.cli import package_version
+
+    def not_installed(name):
+        raise metadata.PackageNotFoundError(name)
+
+    monkeypatch.setattr(metadata, "version", not_installed)
+    pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+    assert package_version() == tomllib.loads(pyproject.read_text())["project"]["version"]

@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from telesmooth.diagrams.comparison import compare_methods, method_settings
+from telesmooth.studies.comparison import compare_methods, method_settings
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.diagrams.simulation import simulate, tool_positions
 from telesmooth.scripts.cli import main

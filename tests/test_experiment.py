@@ -1,4 +1,4 @@
-"""The LASA experiment (diagrams/experiment.py, `telesmooth experiment`)."""
+"""The LASA experiment (studies/experiment.py, `telesmooth experiment`)."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import math
 import numpy as np
 import pytest
 
-from telesmooth.diagrams.claims import check_claims, summarize, summarize_cells
-from telesmooth.diagrams.comparison import response_latency
-from telesmooth.diagrams.experiment import (
+from telesmooth.studies.claims import check_claims, summarize, summarize_cells
+from telesmooth.studies.comparison import response_latency
+from telesmooth.studies.experiment import (
     ExperimentConfig,
     experiment_scenario,
     make_tasks,
@@ -375,7 +375,7 @@ def test_cli_writes_the_report_and_names_bad_shapes(tmp_path, capsys):
 
 def _fake_run_task(calls, stop_after=None):
     """A stand-in for run_task with the record layout of a real one, instant."""
-    from telesmooth.diagrams import experiment
+    from telesmooth.studies import experiment
 
     def fake(task, base, config):
         if stop_after is not None and len(calls) >= stop_after:
@@ -492,7 +492,7 @@ def test_shards_merge_into_the_report_of_the_whole_grid(base, tmp_path, monkeypa
 
 def test_a_method_that_fails_on_one_demonstration_is_reported_not_fatal(base, monkeypatch,
                                                                          tmp_path):
-    from telesmooth.diagrams import experiment
+    from telesmooth.studies import experiment
     from telesmooth.scripts.experiment_report import write_experiment_report
 
     real = experiment.run_method

@@ -7,7 +7,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.lcm import LcmInterfaceSystem, LcmSubscriberSystem
 
-from telesmooth.diagrams.channels import (
+from telesmooth.lcm_types.channels import (
     ONBOARD_JOINT_STATUS,
     TELEOP_HAPTIC_COMMAND,
     TELEOP_JOINT_COMMAND,

@@ -7,7 +7,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
 
-from telesmooth.diagrams.channels import TELEOP_JOINT_COMMAND
+from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.lcm_types import (
     lcmt_onboard_joint_status,
     lcmt_teleop_collision_event,

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-import telesmooth.diagrams.comparison as comparison
-from telesmooth.diagrams.comparison import prepare_comparison, run_method, set_improvement_ratios
+import telesmooth.studies.comparison as comparison
+from telesmooth.studies.comparison import prepare_comparison, run_method, set_improvement_ratios
 from telesmooth.diagrams.scenario import load_scenario
 
 REFERENCE_ACCURACY = 1e-6

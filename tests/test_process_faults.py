@@ -28,7 +28,7 @@ from process_fixtures import (
     read_rows,
 )
 
-from telesmooth.diagrams.channels import TELEOP_JOINT_COMMAND
+from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.lcm_types import lcmt_teleop_joint_command
 from telesmooth.link.auth import generate_key_file, sign

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from process_fixtures import PROCESS_TEST_TIMEOUT_S
 
-from telesmooth.diagrams.channels import TELEOP_JOINT_COMMAND
+from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.diagrams.simulation import simulate
 from telesmooth.lcm_types import lcmt_teleop_joint_command

@@ -22,8 +22,8 @@ from telesmooth.diagrams.visualization import (
     draw_tool_path,
     draw_workspace,
     local_meshcat,
-    record_meshcat_html,
 )
+from telesmooth.diagrams.simulation import record_meshcat_html
 from telesmooth.systems.flexible_arm import FlexibleArmConfig, FlexibleJointArm
 
 REPO = Path(__file__).resolve().parents[1]

@@ -41,9 +41,10 @@ Metrics per method (index i = operator sample, 0 ≤ i < N):
 * ``presim_violations``: samples the pre-simulator would reject (collision within the safety
   margin, joint limits). The comparison is a simulation, so they are reported, not enforced.
 
-Method names are those of ``smooth_recording``, plus ``offline-cks-trajectory``: Offline-CKS
-with hard finite-difference limits and rest at the end (docs/method.md §2.6; the offline mode's default).
-Plain ``offline-cks`` is the paper's state box without a terminal constraint.
+Method names are those of the registry, :data:`telesmooth.smoothing.methods.METHODS` (with
+its aliases), among them ``offline-cks-trajectory``: Offline-CKS with hard finite-difference
+limits and rest at the end (docs/method.md §2.6; the offline mode's default). Plain
+``offline-cks`` is the paper's state box without a terminal constraint.
 """
 
 from __future__ import annotations
@@ -73,7 +74,14 @@ from telesmooth.diagrams.simulation import (
     tool_positions,
 )
 from telesmooth.diagrams.teleoperation import scenario_smoother_config
-from telesmooth.smoothing.methods import SmoothingSettings, smooth_recording
+from telesmooth.smoothing.methods import (
+    METHOD_ALIASES,
+    METHODS,
+    SmoothingSettings,
+    method_name,
+    method_variant,
+    smooth_recording,
+)
 from telesmooth.smoothing.offline import OFFLINE_SOLVERS
 from telesmooth.smoothing.metrics import (
     finite_differences,
@@ -83,10 +91,9 @@ from telesmooth.smoothing.metrics import (
     tracking_errors,
 )
 from telesmooth.smoothing.offline import with_rest_history
-from telesmooth.smoothing.validation import as_per_joint
+from telesmooth.arms.joint_vectors import as_per_joint
 
 __all__ = [
-    "COMPARE_METHODS",
     "Comparison",
     "LEAST_DEFORMATION",
     "ComparisonSetup",
@@ -102,11 +109,6 @@ __all__ = [
     "run_summary",
     "set_improvement_ratios",
 ]
-
-COMPARE_METHODS = ("original", "kf", "kf-predictor", "offline-ks", "offline-cks",
-                   "offline-cks-trajectory", "offline-hard", "bmfls", "online-cks",
-                   "online-hard", "ruckig")
-"""Every method :func:`compare_methods` knows, in the order of the paper's Table 2."""
 
 LEAST_DEFORMATION = "offline-hard"
 """The reference for how much deformation the limits force (the commands closest to the
@@ -129,7 +131,7 @@ class MethodRun:
     """One method played through the plant.
 
     Attributes:
-        method: The name (one of :data:`COMPARE_METHODS`).
+        method: The name (one of :data:`~telesmooth.smoothing.methods.METHODS`).
         delay_ticks: d, packets between operator sample i and the packet carrying it.
         estimate: q̂_i, the method's estimate of each operator sample, rad, (N, J).
         packets: What the uplink sent at each tick t_k = k·Δt, rad, (N + d, J).
@@ -243,8 +245,8 @@ def method_settings(scenario: Scenario, method: str, offline_solver: str = "drak
     Raises:
         ValueError: For an unknown method or solver.
     """
-    if method not in COMPARE_METHODS:
-        raise ValueError(f"method = {method!r} must be one of {COMPARE_METHODS}")
+    if not isinstance(method, str) or (method not in METHODS and method not in METHOD_ALIASES):
+        raise ValueError(f"method = {method!r} must be one of {METHODS}")
     if offline_solver not in OFFLINE_SOLVERS:
         raise ValueError(f"offline_solver = {offline_solver!r} must be one of {OFFLINE_SOLVERS}")
     config = scenario_smoother_config(scenario)
@@ -253,10 +255,7 @@ def method_settings(scenario: Scenario, method: str, offline_solver: str = "drak
         max_jerk=config.max_jerk_rad_per_s3, sigma=config.sigma, r=config.r, lag=config.lag,
         fixed_lag_method=config.fixed_lag_method, reduced_q=config.reduced_q,
         offline_solver=offline_solver, start_prior=config.start_prior)
-    if method == "offline-cks-trajectory":
-        return "offline-cks", dataclasses.replace(settings, constraint="trajectory",
-                                                  rest_at_end=True)
-    return method, settings
+    return method_variant(method, settings)
 
 
 def _settle_ticks(scenario: Scenario) -> int:
@@ -409,7 +408,8 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
 
     Args:
         setup: From :func:`prepare_comparison`.
-        method: A name of :data:`COMPARE_METHODS` (its settings come from the scenario).
+        method: A name of :data:`~telesmooth.smoothing.methods.METHODS` (its settings come
+            from the scenario).
         settings, base_method: Override the ``smooth_recording`` settings and method (e.g. a
             sensitivity study of Online-CKS); both default to :func:`method_settings`.
         label: The run's name (default ``method``).
@@ -530,14 +530,15 @@ def set_improvement_ratios(runs: dict, reference: str = _REFERENCE) -> None:
                                           - runs[reference].metrics["latency_s"])
 
 
-def compare_methods(scenario: Scenario, methods=COMPARE_METHODS, *,
+def compare_methods(scenario: Scenario, methods=METHODS, *,
                     progress: Callable[[str], None] | None = None,
                     offline_solver: str = "drake") -> Comparison:
     """Runs each method on the scenario's recorded session through the same plant.
 
     Args:
         scenario: A scenario with a recorded session (not ``haptic.source = 'lcm'``).
-        methods: Names from :data:`COMPARE_METHODS`; ``original`` is always run (it is the
+        methods: Names from :data:`~telesmooth.smoothing.methods.METHODS` (or their aliases);
+            ``original`` is always run (it is the
             reference of P) and comes first.
         progress: Called with a one-line message per method.
         offline_solver: Solver of the Offline-CKS methods: "drake" (the MathematicalProgram)
@@ -551,9 +552,11 @@ def compare_methods(scenario: Scenario, methods=COMPARE_METHODS, *,
         RuntimeError: A method failed to produce a command sequence (the message names it).
     """
     methods = tuple(methods)
-    unknown = [m for m in methods if m not in COMPARE_METHODS]
+    unknown = [m for m in methods if not isinstance(m, str)
+               or (m not in METHODS and m not in METHOD_ALIASES)]
     if unknown:
-        raise ValueError(f"methods {unknown!r} are not among {COMPARE_METHODS}")
+        raise ValueError(f"methods {unknown!r} are not among {METHODS}")
+    methods = tuple(method_name(m) for m in methods)
     if len(set(methods)) != len(methods):
         raise ValueError(f"methods = {methods!r} repeats a method")
     if offline_solver not in OFFLINE_SOLVERS:

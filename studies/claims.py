@@ -1,6 +1,6 @@
 """The experiment's figures and the paper's claims, from the records of its tasks.
 
-:func:`summarize_cells` groups the records of :mod:`telesmooth.diagrams.experiment` by cell
+:func:`summarize_cells` groups the records of :mod:`telesmooth.studies.experiment` by cell
 (plant × speed) and :func:`summarize` turns one cell's records into means, medians, 90th
 percentiles and worst cases per method, with P taken against the original of the same
 demonstration; :func:`check_claims` gives a verdict per claim C1–C8 (docs/method.md §7) with the
@@ -14,8 +14,8 @@ import math
 
 import numpy as np
 
-from telesmooth.diagrams.comparison import LEAST_DEFORMATION
-from telesmooth.diagrams.experiment import KF_FORMS, cell_name
+from telesmooth.studies.comparison import LEAST_DEFORMATION
+from telesmooth.studies.experiment import KF_FORMS, cell_name
 
 __all__ = [
     "APPROXIMATE_LIMIT",

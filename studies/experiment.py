@@ -1,17 +1,17 @@
 """The paper's experiment on real human demonstrations, at scale (``telesmooth experiment``).
 
 Grid (every task is one simulation of the whole chain, see
-:func:`~telesmooth.diagrams.comparison.run_method`), for every *cell* (plant drive preset ×
+:func:`~telesmooth.studies.comparison.run_method`), for every *cell* (plant drive preset ×
 operator speed):
 
     LASA shape × demonstration × method      (the main table; every method of
-                                              :data:`~telesmooth.diagrams.comparison.COMPARE_METHODS`)
+                                              :data:`~telesmooth.smoothing.methods.METHODS`)
     sensitivity shapes × Online-CKS variant  (σ_0, σ_min and the reduced-Q step ρ, one at a time)
 
 plus one core-only task per shape for claim C8 (Online-CKS over the shape's demonstrations in
 order, each operation starting from the σ the previous one ended with, against each starting
 from σ_0). Each cell is summarised and judged on its own
-(:func:`telesmooth.diagrams.claims.summarize_cells`).
+(:func:`telesmooth.studies.claims.summarize_cells`).
 
 Operator speed is a multiple of the demonstrator's own hand speed: the LASA clock is stretched by
 the default ``lasa_mapping.time_scale`` (10, the hand's own speed) divided by the speed (speed 2.5
@@ -32,7 +32,7 @@ cluster of worker processes by default (bound to 127.0.0.1, no dashboard: only t
 health/metrics HTTP endpoint, on 127.0.0.1), an existing cluster
 given its scheduler address, or in this process (``workers=0``).
 
-Each task's record is JSON-ready; :mod:`telesmooth.diagrams.claims` aggregates the records
+Each task's record is JSON-ready; :mod:`telesmooth.studies.claims` aggregates the records
 and judges the claims, without running anything.
 """
 
@@ -48,8 +48,7 @@ import numpy as np
 
 from telesmooth.arms.modes import plant_modes
 from telesmooth.datasets.lasa import LASA_DEMOS_PER_SHAPE, LASA_SHAPES, WorkspaceMapping
-from telesmooth.diagrams.comparison import (
-    COMPARE_METHODS,
+from telesmooth.studies.comparison import (
     OperatorSamples,
     method_settings,
     operator_samples,
@@ -59,7 +58,7 @@ from telesmooth.diagrams.comparison import (
 )
 from telesmooth.diagrams.scenario import Scenario
 from telesmooth.smoothing.metrics import finite_differences
-from telesmooth.smoothing.methods import smooth_recording
+from telesmooth.smoothing.methods import METHOD_ALIASES, METHODS, method_name, smooth_recording
 from telesmooth.smoothing.offline import OFFLINE_SOLVERS, with_rest_history
 from telesmooth.smoothing.reduced_q import DEFAULT_SIGMA_MIN_RATIO
 
@@ -73,9 +72,6 @@ __all__ = [
     "run_experiment",
     "run_task",
 ]
-
-EXPERIMENT_METHODS = COMPARE_METHODS
-"""The methods of the main table."""
 
 KF_FORMS = ("kf", "kf-predictor")
 """The paper's "KF" comparator read as the a-posteriori filter x̂_{k|k} or its one-step
@@ -113,7 +109,7 @@ class ExperimentConfig:
 
     shapes: tuple[str, ...] = LASA_SHAPES
     demos: tuple[int, ...] = (0,)
-    methods: tuple[str, ...] = EXPERIMENT_METHODS
+    methods: tuple[str, ...] = METHODS
     plant_time_step_s: float | None = None
     settle_s: float = 5.0
     sensitivity_shapes: tuple[str, ...] = ("Angle", "CShape", "GShape", "Sshape", "Worm")
@@ -152,9 +148,13 @@ class ExperimentConfig:
         if self.offline_solver not in OFFLINE_SOLVERS:
             raise ValueError(f"offline_solver = {self.offline_solver!r} must be one of "
                              f"{OFFLINE_SOLVERS}")
-        unknown = [m for m in self.methods if m not in EXPERIMENT_METHODS]
+        unknown = [m for m in self.methods if not isinstance(m, str)
+                   or (m not in METHODS and m not in METHOD_ALIASES)]
         if unknown:
-            raise ValueError(f"methods {unknown!r} are not among {EXPERIMENT_METHODS}")
+            raise ValueError(f"methods {unknown!r} are not among {METHODS}")
+        # The registry's names (an alias such as pass-through is its method, original).
+        if any(m in METHOD_ALIASES for m in self.methods):
+            object.__setattr__(self, "methods", tuple(method_name(m) for m in self.methods))
         step = self.plant_time_step_s
         if step is not None and not (math.isfinite(step) and step >= 0):
             raise ValueError(f"plant_time_step_s = {step!r} must be None, 0 (continuous) or "
@@ -176,7 +176,7 @@ class ExperimentTask:
         index: Position in the grid (results are returned in this order).
         kind: ``"run"`` (one simulation) or ``"c8"`` (core only, one shape's demonstrations).
         shape, demo: The LASA demonstration (``demo`` unused for ``c8``).
-        method: A method of :data:`EXPERIMENT_METHODS`.
+        method: A method of :data:`~telesmooth.smoothing.methods.METHODS`.
         label: The run's name in the tables (the method, or e.g. ``online-cks σ0×10``).
         study: ``"main"`` or the sensitivity parameter (``"sigma0"``, ``"sigma_min"``, ``"rho"``).
         value: The parameter's value (NaN for ``main``).
