@@ -191,6 +191,10 @@ class StoppablePolygon:
 def _convex_hull(points: np.ndarray) -> np.ndarray:
     """Counter-clockwise hull of (n, 2) points without collinear vertices (monotone chain).
     Degenerate inputs give 1 or 2 points."""
+    if len(points) > _LARGE_HULL:
+        hull = _qhull(np.round(points, 15))
+        if hull is not None:
+            return hull
     pts = np.unique(np.round(points, 15), axis=0)
     if len(pts) <= 2:
         return pts
@@ -212,20 +216,57 @@ def _convex_hull(points: np.ndarray) -> np.ndarray:
     return np.array(lower[:-1] + upper[:-1])
 
 
+_LARGE_HULL = 256
+"""Above this many points the hull is Qhull's (scipy, in C) instead of the monotone chain in
+Python: the extreme limit ratios (a_max/(j_max Δt) in the hundreds) give polygons of
+thousands of vertices, where the Python loop took minutes."""
+
+
+def _qhull(pts: np.ndarray) -> np.ndarray | None:
+    """Counter-clockwise hull of points by Qhull, without the vertices where the boundary
+    turns by no more than the monotone chain's tolerance; None if Qhull refuses (degenerate
+    input: the caller falls back to the monotone chain)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        hull = pts[ConvexHull(pts).vertices]      # counter-clockwise in 2-D
+    except (QhullError, ValueError):
+        return None
+    while len(hull) > 3:
+        o, a, p = np.roll(hull, 1, axis=0), hull, np.roll(hull, -1, axis=0)
+        cross = (a[:, 0] - o[:, 0]) * (p[:, 1] - o[:, 1]) \
+            - (a[:, 1] - o[:, 1]) * (p[:, 0] - o[:, 0])
+        flat = cross <= _HULL_TOLERANCE
+        if not flat.any():
+            break
+        # Drop flat vertices whose predecessor stays (never two neighbours in one pass: the
+        # turn at a vertex is judged against neighbours that are kept).
+        index = np.arange(len(hull))
+        drop = flat & (index % 2 == 0)
+        if len(hull) % 2 == 1:
+            drop[-1] = False      # the last and the first (both even) are neighbours
+        if not drop.any():
+            drop = flat & (index % 2 == 1)
+        hull = hull[~drop]
+    return hull
+
+
 def _clip_halfplane(poly: np.ndarray, normal, offset: float) -> np.ndarray:
     """Convex polygon ∩ {x : normal · x ≤ offset} (Sutherland–Hodgman); the result is convex
     and in order but may repeat points (the caller re-hulls)."""
+    if len(poly) == 0:
+        return np.zeros((0, 2))
     values = poly @ np.asarray(normal) - offset
-    out = []
-    n = len(poly)
-    for i in range(n):
-        p, q = poly[i], poly[(i + 1) % n]
-        vp, vq = values[i], values[(i + 1) % n]
-        if vp <= 0.0:
-            out.append(p)
-        if (vp < 0.0 < vq) or (vq < 0.0 < vp):
-            out.append(p + (q - p) * (vp / (vp - vq)))
-    return np.array(out) if out else np.zeros((0, 2))
+    following = np.roll(poly, -1, axis=0)
+    next_values = np.roll(values, -1)
+    keep = values <= 0.0
+    crosses = ((values < 0.0) & (next_values > 0.0)) | ((next_values < 0.0) & (values > 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(crosses, values / (values - next_values), 0.0)
+    crossing = poly + (following - poly) * ratio[:, None]
+    # Edge by edge, in order: the start point if kept, then the crossing if any.
+    stacked = np.stack([poly, crossing], axis=1)           # (n, 2 points, 2)
+    return stacked[np.stack([keep, crosses], axis=1)]
 
 
 def _facets(vertices: np.ndarray) -> np.ndarray:
@@ -270,9 +311,10 @@ def stoppable_polygon(
         RuntimeError: the certification failed (a bug, not an input error).
 
     Cost: O(N · vertices) with N ≈ v_max/(a_max Δt) + a_max/(j_max Δt) (at most max_steps);
-    milliseconds at 4 Hz with realistic limits, ~2 s at 100 Hz (v_max = 0.3, a_max = 0.05,
-    j_max = 0.1) and up to ~10 s for extreme ratios at 100 Hz, where the vertex count grows
-    with a_max/(j_max Δt) (a known limit: no vertex pruning yet).
+    milliseconds at 4 Hz with realistic limits, ~1.5 s at 100 Hz (v_max = 0.3, a_max = 0.05,
+    j_max = 0.1); the vertex count grows with a_max/(j_max Δt), and with ratios in the hundreds
+    (880 vertices at a_max/(j_max Δt) ≈ 440) it takes ~15 s (hulls above :data:`_LARGE_HULL`
+    points by Qhull; was minutes with the monotone chain alone; a known limit).
     :func:`limiter_params` caches the polygons by limits.
     """
     v_max, a_max, j_max, dt = (float(max_velocity), float(max_acceleration), float(max_jerk),

@@ -392,3 +392,36 @@ def test_state_vector_round_trip_continues_identically():
     np.testing.assert_array_equal(np.array(out), np.array(expected))
     with pytest.raises(ValueError, match="state vector has shape"):
         second.set_state_vector(np.zeros(3))
+
+
+def test_large_hulls_by_qhull_equal_the_monotone_chain():
+    """Above _LARGE_HULL points the hull is Qhull's: the same vertices (as a set, in
+    counter-clockwise order) as the monotone chain on points of a convex polygon's Minkowski
+    sum with a segment (the stoppable-set recursion's input), collinear points dropped."""
+    from telesmooth.safety import limiter
+
+    rng = np.random.default_rng(7)
+    angles = np.sort(rng.uniform(0, 2 * np.pi, 400))
+    polygon = np.column_stack([np.cos(angles), 0.3 * np.sin(angles)])
+    segment = np.array([0.01, 0.002])
+    points = np.vstack([polygon + segment, polygon - segment,
+                        0.5 * (polygon[:50] + polygon[1:51])])       # interior and edge points
+    assert len(points) > limiter._LARGE_HULL
+    fast = limiter._convex_hull(points)
+    chain_points = np.unique(np.round(points, 15), axis=0)
+    original, limiter._LARGE_HULL = limiter._LARGE_HULL, 10**9
+    try:
+        slow = limiter._convex_hull(chain_points)
+    finally:
+        limiter._LARGE_HULL = original
+    assert {tuple(p) for p in fast} == {tuple(p) for p in slow}
+    area = 0.5 * np.sum(fast[:, 0] * np.roll(fast[:, 1], -1) - np.roll(fast[:, 0], -1) * fast[:, 1])
+    assert area > 0                                                  # counter-clockwise
+
+
+def test_extreme_limit_ratios_give_a_certified_polygon_in_seconds():
+    """a_max/(j_max Δt) ≈ 440: hundreds of vertices (the Qhull path); the polygon certifies
+    itself (stoppable_polygon raises otherwise) and contains rest."""
+    dut = stoppable_polygon(6.64, 0.0518, 0.00118, 0.1)
+    assert len(dut.vertices) > 100
+    assert dut.contains(0.0, 0.0)

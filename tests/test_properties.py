@@ -108,7 +108,8 @@ def test_every_method_returns_finite_positions_of_the_right_shape(method):
     """At Δt = 0.01 s Clarabel fails on most of these (cond(AᵀA) ≈ 1e17); Offline-CKS then
     falls back to the banded interior point's square-root route. online-hard is drawn at
     Δt ≥ 0.1 s: its stoppable polygon at 100 Hz with these extreme random limit ratios takes
-    seconds per joint to build (smoothing.online_hard.stoppable_polygon; a known limit)."""
+    seconds per joint to build (safety.limiter.stoppable_polygon: up to ~15 s for the most
+    extreme ratios drawn here, with Qhull for the large hulls; a known limit)."""
     @settings(**FAST)
     @given(cases(dts=(0.1, 0.25, 1.0)) if method == "online-hard" else cases())
     def check(case):
