@@ -27,6 +27,11 @@ from pathlib import Path
 import numpy as np
 
 from telesmooth.atomic_files import atomic_write
+from telesmooth.smoothing.trajectory_io import (
+    check_uniform_time,
+    parse_csv_rows,
+    read_csv_table,
+)
 from telesmooth.user_input import (
     MAX_NPZ_ARRAY_BYTES,
     MAX_NPZ_BYTES,
@@ -34,11 +39,6 @@ from telesmooth.user_input import (
     describe_size,
     quote,
     read_file_bytes,
-)
-from telesmooth.smoothing.trajectory_io import (
-    check_uniform_time,
-    parse_csv_rows,
-    read_csv_table,
 )
 
 __all__ = [

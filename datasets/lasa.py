@@ -178,7 +178,7 @@ def validate_demo_index(demo_index: int, shape: str | None = None,
 
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _read_shape_file(shape: str) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
     """Read all demonstrations of one shape from its ``.mat`` file.
 

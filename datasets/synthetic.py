@@ -25,9 +25,9 @@ import operator
 import numpy as np
 import scipy.signal
 
+from telesmooth.arms.joint_vectors import check_positive_int, check_positive_scalar
 from telesmooth.arms.planar import AIR_BEARING_ARM, PlanarArm
 from telesmooth.datasets.lasa import OperatorSession, WorkspaceMapping, _operator_session_from_xy
-from telesmooth.arms.joint_vectors import check_positive_int, check_positive_scalar
 
 __all__ = [
     "SYNTHETIC_SHAPE",

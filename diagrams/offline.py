@@ -43,6 +43,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
 from telesmooth.arms.collision import ArmCollisionModel
+from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.diagrams.scenario import Scenario, initial_position, make_haptic_recording
 from telesmooth.diagrams.teleoperation import (
     AddOnboardRobot,
@@ -51,9 +52,8 @@ from telesmooth.diagrams.teleoperation import (
     connect_uplink_to_robot,
     scenario_smoother_config,
 )
-from telesmooth.systems.laser_tracker import tracker_record
-from telesmooth.smoothing.metrics import VIOLATION_RTOL, finite_differences, limit_statistics
 from telesmooth.smoothing.kalman import start_prior
+from telesmooth.smoothing.metrics import VIOLATION_RTOL, finite_differences, limit_statistics
 from telesmooth.smoothing.model import JerkModel
 from telesmooth.smoothing.offline import (
     HISTORY_LENGTH,
@@ -61,8 +61,8 @@ from telesmooth.smoothing.offline import (
     solve_offline_cks,
     with_rest_history,
 )
-from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.systems.flexible_arm import FlexibleJointArm
+from telesmooth.systems.laser_tracker import tracker_record
 from telesmooth.systems.planned_path_source import PlannedPathSource
 from telesmooth.systems.uplink import Uplink
 

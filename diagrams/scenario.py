@@ -27,6 +27,7 @@ from telesmooth.arms.air_bearing import (
     space_arm_pose_to_planar,
 )
 from telesmooth.arms.description import ARMS, ArmDescription
+from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_3r_inverse_kinematics
 from telesmooth.arms.workspace import AIR_BEARING_WORKSPACE, SPACE_ARM_WORKSPACE, Workspace
 from telesmooth.datasets.haptic_recording import (
@@ -43,6 +44,16 @@ from telesmooth.datasets.operator_recordings import (
 )
 from telesmooth.datasets.synthetic import SyntheticOperatorConfig
 from telesmooth.lcm_types.channels import DEFAULT_LCM_URL
+from telesmooth.link.faults import LinkFaultConfig
+from telesmooth.systems.collision_checker import CollisionCheckerConfig
+from telesmooth.systems.delay_fifo import DelayFifoConfig
+from telesmooth.systems.flexible_arm import FlexibleArmConfig
+from telesmooth.systems.inverse_kinematics import InverseKinematicsConfig
+from telesmooth.systems.joint_command_receiver import JointCommandReceiverConfig
+from telesmooth.systems.link_guard import LinkGuardConfig
+from telesmooth.systems.reduced_q_smoother import ReducedQSmootherConfig
+from telesmooth.systems.uplink import UplinkConfig
+from telesmooth.typed_yaml import config_from_data, load_yaml_text, merge_data
 from telesmooth.user_input import (
     MAX_YAML_BYTES,
     InputFileError,
@@ -51,17 +62,6 @@ from telesmooth.user_input import (
     read_file_bytes,
     unknown_choice,
 )
-from telesmooth.arms.joint_vectors import as_per_joint
-from telesmooth.typed_yaml import config_from_data, load_yaml_text, merge_data
-from telesmooth.systems.collision_checker import CollisionCheckerConfig
-from telesmooth.systems.delay_fifo import DelayFifoConfig
-from telesmooth.systems.flexible_arm import FlexibleArmConfig
-from telesmooth.systems.inverse_kinematics import InverseKinematicsConfig
-from telesmooth.link.faults import LinkFaultConfig
-from telesmooth.systems.joint_command_receiver import JointCommandReceiverConfig
-from telesmooth.systems.link_guard import LinkGuardConfig
-from telesmooth.systems.reduced_q_smoother import ReducedQSmootherConfig
-from telesmooth.systems.uplink import UplinkConfig
 
 __all__ = [
     "BUILTIN_SCENARIOS_FILE",

@@ -17,12 +17,12 @@ from collections.abc import Callable
 import numpy as np
 from pydrake.systems.analysis import Simulator
 
+from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_forward_kinematics
 from telesmooth.diagrams.scenario import Scenario, describe_operator, make_haptic_recording
 from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram, uplink_packets
 from telesmooth.diagrams.visualization import save_meshcat_recording, start_meshcat_recording
 from telesmooth.smoothing.metrics import smoothing_metrics, tracking_errors
-from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.systems.laser_tracker import tracker_record
 
 __all__ = ["ResponseErrors", "SimulationRecord", "plant_summary", "plant_text",

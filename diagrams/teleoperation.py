@@ -30,18 +30,18 @@ from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem
 from pydrake.systems.primitives import LogVectorOutput
 
 from telesmooth.datasets.haptic_recording import HapticRecording
-from telesmooth.lcm_types.channels import (
-    ONBOARD_JOINT_STATUS,
-    TELEOP_COLLISION_EVENT,
-    TELEOP_HAPTIC_COMMAND,
-    TELEOP_JOINT_COMMAND,
-)
 from telesmooth.diagrams.scenario import Scenario, initial_position, make_haptic_recording
 from telesmooth.lcm_types import (
     lcmt_onboard_joint_status,
     lcmt_teleop_collision_event,
     lcmt_teleop_haptic_command,
     lcmt_teleop_joint_command,
+)
+from telesmooth.lcm_types.channels import (
+    ONBOARD_JOINT_STATUS,
+    TELEOP_COLLISION_EVENT,
+    TELEOP_HAPTIC_COMMAND,
+    TELEOP_JOINT_COMMAND,
 )
 from telesmooth.systems.collision_checker import CollisionChecker
 from telesmooth.systems.collision_event_sender import CollisionEventSender
@@ -408,7 +408,7 @@ def first_sample_indices(sequence) -> np.ndarray:
     return first[sequence[first] >= 0]
 
 
-def uplink_packets(handles: "TeleoperationHandles", context):
+def uplink_packets(handles: TeleoperationHandles, context):
     """The logged uplink packets of a run: (seq (M,), send times (M,), states (M, 4J))."""
     logs = handles.logs
     seq = logs["sequence_number"].FindLog(context).data()[0]

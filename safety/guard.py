@@ -70,6 +70,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from telesmooth.arms.joint_vectors import _joint_label, as_per_joint
 from telesmooth.safety.limiter import (
     DEFAULT_MARGIN,
     HISTORY_LENGTH,
@@ -87,7 +88,6 @@ from telesmooth.safety.stop import (
     plan_stop,
     stop_params,
 )
-from telesmooth.arms.joint_vectors import _joint_label, as_per_joint
 
 __all__ = [
     "FdLimitRatios",

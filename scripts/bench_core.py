@@ -224,8 +224,8 @@ def _ruckig_stream_step(z, ticks):
 
 
 def _online_rows(lags, ticks, repeat) -> dict:
-    from telesmooth.smoothing.fixed_lag import FixedLagSmoother
     from telesmooth.safety.limiter import limiter_params, limiter_rest_state, limiter_step
+    from telesmooth.smoothing.fixed_lag import FixedLagSmoother
     from telesmooth.smoothing.reduced_q import OnlineCks
 
     rows = []
@@ -530,8 +530,8 @@ def _experiment_scenario(shape: str, demo: int, time_step_s: float | None):
     import dataclasses
     import zlib
 
-    from telesmooth.studies.experiment import ExperimentConfig
     from telesmooth.diagrams.scenario import load_scenario
+    from telesmooth.studies.experiment import ExperimentConfig
 
     base = load_scenario(scenario_name="Defaults")
     seed = zlib.crc32(f"{shape}/{demo}".encode()) & 0x7FFFFFFF
@@ -548,13 +548,13 @@ def _experiment_scenario(shape: str, demo: int, time_step_s: float | None):
 def _experiment_cell(shape: str, demo: int, time_step_s: float | None) -> dict:
     """Every method on one demonstration, as the experiment runs each task (the IK pass once,
     as one worker does for the tasks of a demonstration it has already seen)."""
+    from telesmooth.diagrams.scenario import make_haptic_recording
     from telesmooth.smoothing.methods import METHODS
     from telesmooth.studies.comparison import (
         operator_samples,
         prepare_comparison,
         run_method,
     )
-    from telesmooth.diagrams.scenario import make_haptic_recording
 
     scenario = _experiment_scenario(shape, demo, time_step_s)
     recording = make_haptic_recording(scenario)
@@ -579,8 +579,8 @@ def _experiment_cell(shape: str, demo: int, time_step_s: float | None) -> dict:
 
 def _experiment_c8_cell(shape: str) -> dict:
     """One C8 task (core only: Online-CKS over the shape's 7 demonstrations, twice)."""
-    from telesmooth.studies.experiment import ExperimentConfig, ExperimentTask, run_task
     from telesmooth.diagrams.scenario import load_scenario
+    from telesmooth.studies.experiment import ExperimentConfig, ExperimentTask, run_task
 
     base = load_scenario(scenario_name="Defaults")
     cpu = time.process_time()

@@ -27,7 +27,7 @@ import re
 import sys
 from pathlib import Path
 
-
+from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.smoothing.kalman import START_PRIORS
 from telesmooth.smoothing.methods import (
     METHOD_ALIASES,
@@ -49,7 +49,6 @@ from telesmooth.smoothing.reduced_q import (
     stored_operators,
 )
 from telesmooth.smoothing.trajectory_io import read_joint_csv, write_joint_csv
-from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.user_input import name_fields, parse_plain_number, quote
 
 METHOD_CHOICES = METHODS + tuple(METHOD_ALIASES)
@@ -608,13 +607,13 @@ def _number_list(text: str, option: str) -> tuple[float, ...]:
 
 
 def run_experiment_command(args) -> int:
-    from telesmooth.studies.experiment import ExperimentConfig
     from telesmooth.scripts.experiment_report import (
         merge_experiment_reports,
         parse_demos,
         parse_shard,
         write_experiment_report,
     )
+    from telesmooth.studies.experiment import ExperimentConfig
 
     base = _load_scenario(args)
     _check_run_length(base, None, uses_duration=False)
@@ -740,9 +739,8 @@ def run_keygen(args) -> int:
 
 
 def run_process(args) -> int:
-    from telesmooth.scripts.processes import run_ground, run_onboard
-
     from telesmooth.lcm_types.channels import check_lcm_url
+    from telesmooth.scripts.processes import run_ground, run_onboard
 
     scenario = _load_scenario(args)
     url = check_lcm_url("--lcm-url" if args.lcm_url else "lcm_url (scenario)",

@@ -21,11 +21,6 @@ from pathlib import Path
 import numpy as np
 
 from telesmooth.atomic_files import atomic_write, write_text
-from telesmooth.studies.comparison import (
-    LEAST_DEFORMATION,
-    Comparison,
-    compare_methods,
-)
 from telesmooth.diagrams.scenario import describe_operator
 from telesmooth.diagrams.simulation import plant_text, tool_positions
 from telesmooth.scripts.figures import FigureWriter
@@ -33,6 +28,11 @@ from telesmooth.scripts.formatting import limit_ratio
 from telesmooth.smoothing.methods import METHODS
 from telesmooth.smoothing.metrics import finite_differences
 from telesmooth.smoothing.offline import HISTORY_LENGTH, with_rest_history
+from telesmooth.studies.comparison import (
+    LEAST_DEFORMATION,
+    Comparison,
+    compare_methods,
+)
 
 __all__ = ["table_markdown", "write_comparison_report"]
 

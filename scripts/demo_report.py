@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from telesmooth.atomic_files import write_text
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_forward_kinematics
+from telesmooth.atomic_files import write_text
 from telesmooth.datasets.lasa import lasa_operator_session
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.smoothing.methods import METHODS, SmoothingSettings, smooth_recording

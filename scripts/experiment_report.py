@@ -30,7 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from telesmooth.atomic_files import write_text
-from telesmooth.user_input import MAX_JSON_BYTES, read_file_bytes
+from telesmooth.scripts.figures import FigureWriter
+from telesmooth.scripts.formatting import limit_ratio
 from telesmooth.studies.claims import (
     APPROXIMATE_LIMIT,
     C1_QUANTILE,
@@ -40,8 +41,7 @@ from telesmooth.studies.claims import (
 )
 from telesmooth.studies.comparison import LEAST_DEFORMATION
 from telesmooth.studies.experiment import ExperimentConfig, make_tasks, run_experiment
-from telesmooth.scripts.figures import FigureWriter
-from telesmooth.scripts.formatting import limit_ratio
+from telesmooth.user_input import MAX_JSON_BYTES, read_file_bytes
 
 __all__ = ["code_fingerprint", "grid_fingerprint", "main_table_markdown", "merge_experiment_reports",
            "read_records", "write_experiment_report"]

@@ -27,13 +27,13 @@ from pathlib import Path
 import numpy as np
 
 from telesmooth.atomic_files import write_text
-from telesmooth.studies.comparison import method_settings, operator_samples
 from telesmooth.diagrams.simulation import tool_positions
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.smoothing.foresight import foresight_sweep
 from telesmooth.smoothing.methods import METHOD_ALIASES, METHODS, method_name, smooth_recording
 from telesmooth.smoothing.metrics import cartesian_deformation, finite_differences
 from telesmooth.smoothing.offline import HISTORY_LENGTH, with_rest_history
+from telesmooth.studies.comparison import method_settings, operator_samples
 
 __all__ = ["foresight_study", "write_foresight_report"]
 

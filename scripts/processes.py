@@ -97,8 +97,8 @@ def robot_telemetry(lcm_url: str, scenario, wait_s: float) -> RobotTelemetry | N
     the arm's joint count, within its joint limits)."""
     import lcm as lcm_module
 
-    from telesmooth.lcm_types.channels import ONBOARD_JOINT_STATUS
     from telesmooth.lcm_types import decode_exact, lcmt_onboard_joint_status
+    from telesmooth.lcm_types.channels import ONBOARD_JOINT_STATUS
 
     arm = scenario.arm_description
     found = []
@@ -220,12 +220,11 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
     from pydrake.systems.analysis import Simulator
 
     from telesmooth.diagrams.teleoperation import MakeOnboardDiagram
+    from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
     from telesmooth.link.session import new_epoch
+    from telesmooth.link.udpm_receiver import UdpmReceiver
     from telesmooth.systems.laser_tracker import tracker_record
     from telesmooth.systems.link_guard import GUARD_MODES
-
-    from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
-    from telesmooth.link.udpm_receiver import UdpmReceiver
 
     scenario = _with_authentication(scenario, uplink_key)
     lcm = DrakeLcm(_check_url(lcm_url))

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.atomic_files import atomic_write, write_text
 from telesmooth.diagrams.simulation import (
     SimulationRecord,
@@ -33,7 +34,6 @@ from telesmooth.diagrams.simulation import (
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.scripts.formatting import limit_ratio
 from telesmooth.smoothing.metrics import finite_differences
-from telesmooth.arms.joint_vectors import as_per_joint
 
 __all__ = ["write_simulation_report"]
 

@@ -41,8 +41,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from telesmooth.smoothing.model import MAX_LAG, SCALED_TRANSITION, STATE_SIZE, JerkModel
 from telesmooth.arms.joint_vectors import check_positive_int, check_trajectory
+from telesmooth.smoothing.model import MAX_LAG, SCALED_TRANSITION, STATE_SIZE, JerkModel
 
 FIXED_LAG_FORMS = ("recursion", "superstate")
 """The two forms of the fixed-lag smoother (its ``method`` argument); the fixed-lag *smoothing

@@ -38,8 +38,8 @@ import math
 import numpy as np
 from pydrake.solvers import ClarabelSolver, MathematicalProgram, QuadraticCost, SolverOptions
 
-from telesmooth.smoothing.offline import finite_difference_operator
 from telesmooth.arms.joint_vectors import _joint_label, as_per_joint, check_trajectory
+from telesmooth.smoothing.offline import finite_difference_operator
 
 __all__ = ["ContinuationResult", "ForesightSweep", "best_continuation", "foresight_sweep"]
 

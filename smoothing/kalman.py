@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from telesmooth.smoothing.model import SCALED_TRANSITION, JerkModel, process_covariance
 from telesmooth.arms.joint_vectors import check_trajectory
+from telesmooth.smoothing.model import SCALED_TRANSITION, JerkModel, process_covariance
 
 OFFLINE_REST_PRIOR_DIAG = (None, 1e-4, 1e-3, 1e-2)
 """docs/method.md §8 offline rest prior: P_0 = diag(r, 1e-4, 1e-3, 1e-2) (None stands for r)."""

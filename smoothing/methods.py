@@ -38,6 +38,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from telesmooth.arms.joint_vectors import (
+    as_per_joint,
+    check_positive_int,
+    check_positive_scalar,
+    check_trajectory,
+)
 from telesmooth.smoothing.fixed_lag import FixedLagSmoother
 from telesmooth.smoothing.kalman import (
     START_PRIORS,
@@ -47,17 +53,11 @@ from telesmooth.smoothing.kalman import (
     start_prior,
 )
 from telesmooth.smoothing.model import DEFAULT_LAG, DEFAULT_R, DEFAULT_SIGMA, MAX_LAG, JerkModel
-from telesmooth.smoothing.online_hard import online_hard_run
 from telesmooth.smoothing.offline import solve_offline_cks
 from telesmooth.smoothing.offline_hard import solve_offline_hard
+from telesmooth.smoothing.online_hard import online_hard_run
 from telesmooth.smoothing.reduced_q import OnlineCks, ReducedQConfig
 from telesmooth.smoothing.ruckig_stream import ruckig_stream
-from telesmooth.arms.joint_vectors import (
-    as_per_joint,
-    check_positive_int,
-    check_positive_scalar,
-    check_trajectory,
-)
 
 METHODS = ("original", "kf", "kf-predictor", "offline-ks", "offline-cks",
            "offline-cks-trajectory", "offline-hard", "bmfls", "online-cks", "online-hard",
@@ -104,7 +104,7 @@ def method_name(method, field: str = "method", known=METHODS) -> str:
     return name
 
 
-def method_variant(method: str, settings: "SmoothingSettings") -> tuple[str, "SmoothingSettings"]:
+def method_variant(method: str, settings: SmoothingSettings) -> tuple[str, SmoothingSettings]:
     """The :func:`smooth_recording` computation behind a method name: ``offline-cks-trajectory``
     is ``offline-cks`` with ``constraint="trajectory"`` and ``rest_at_end`` (docs/method.md
     §2.6; the offline mode's default); every other method is itself, ``settings`` unchanged.

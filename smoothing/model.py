@@ -115,7 +115,7 @@ class JerkModel:
     r: np.ndarray
 
     @staticmethod
-    def make(dt_s: float, sigma, r, *, num_joints: int, joint_names=None) -> "JerkModel":
+    def make(dt_s: float, sigma, r, *, num_joints: int, joint_names=None) -> JerkModel:
         """Validates and broadcasts scalar or per-joint σ and r to ``(num_joints,)``."""
         dt = check_positive_scalar("dt_s", dt_s)
         return JerkModel(

@@ -44,15 +44,16 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sparse
-from scipy.linalg import LinAlgError
-from threadpoolctl import threadpool_limits
 from pydrake.solvers import (
     ClarabelSolver,
     MathematicalProgram,
     QuadraticCost,
     SolverOptions,
 )
+from scipy.linalg import LinAlgError
+from threadpoolctl import threadpool_limits
 
+from telesmooth.arms.joint_vectors import as_per_joint, check_positive_int, check_trajectory
 from telesmooth.smoothing.banded_ip import BandedIpOptions, BandedQp
 from telesmooth.smoothing.kalman import GaussianPrior, rest_prior, rts_smoother
 from telesmooth.smoothing.model import (
@@ -60,7 +61,6 @@ from telesmooth.smoothing.model import (
     UNIT_PROCESS_PRECISION,
     JerkModel,
 )
-from telesmooth.arms.joint_vectors import as_per_joint, check_positive_int, check_trajectory
 
 OFFLINE_CONSTRAINTS = ("state", "trajectory", "both", "none")
 OFFLINE_SOLVERS = ("drake", "banded-ip")

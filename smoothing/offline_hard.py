@@ -30,9 +30,9 @@ import math
 import numpy as np
 import scipy.sparse as sparse
 
+from telesmooth.arms.joint_vectors import _joint_label, as_per_joint, check_trajectory
 from telesmooth.smoothing.banded_ip import BandedIpOptions, BandedQp
 from telesmooth.smoothing.offline import HISTORY_LENGTH, finite_difference_operator
-from telesmooth.arms.joint_vectors import _joint_label, as_per_joint, check_trajectory
 
 __all__ = ["OfflineHardResult", "offline_hard_problem", "solve_offline_hard"]
 

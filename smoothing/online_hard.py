@@ -15,6 +15,7 @@ import warnings
 
 import numpy as np
 
+from telesmooth.arms.joint_vectors import _joint_label, check_trajectory
 from telesmooth.safety.limiter import (
     DEFAULT_MARGIN,
     HISTORY_LENGTH,
@@ -29,7 +30,6 @@ from telesmooth.safety.limiter import (
     stoppable_polygon,
 )
 from telesmooth.safety.state_codec import VectorCodec
-from telesmooth.arms.joint_vectors import _joint_label, check_trajectory
 
 __all__ = [
     "DEFAULT_MARGIN",

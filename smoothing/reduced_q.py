@@ -27,16 +27,16 @@ from pathlib import Path
 
 import numpy as np
 
-from telesmooth.atomic_files import write_text
-from telesmooth.smoothing.fixed_lag import FixedLagSmoother, FixedLagState
-from telesmooth.smoothing.model import JerkModel
-from telesmooth.user_input import MAX_JSON_BYTES, MAX_JSON_DEPTH, quote, read_file_bytes
 from telesmooth.arms.joint_vectors import (
     as_per_joint,
     check_positive_int,
     check_positive_scalar,
     check_trajectory,
 )
+from telesmooth.atomic_files import write_text
+from telesmooth.smoothing.fixed_lag import FixedLagSmoother, FixedLagState
+from telesmooth.smoothing.model import JerkModel
+from telesmooth.user_input import MAX_JSON_BYTES, MAX_JSON_DEPTH, quote, read_file_bytes
 
 REDUCED_Q_VARIANTS = ("A", "B1", "B2")
 SIGMA_STEP_RULES = ("multiplicative", "additive")

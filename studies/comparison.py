@@ -59,6 +59,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from telesmooth.arms.collision import ArmCollisionModel
+from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.diagrams.offline import (
     AddPathPlayback,
     copy_logs,
@@ -82,7 +83,6 @@ from telesmooth.smoothing.methods import (
     method_variant,
     smooth_recording,
 )
-from telesmooth.smoothing.offline import OFFLINE_SOLVERS
 from telesmooth.smoothing.metrics import (
     finite_differences,
     improvement_ratio,
@@ -90,8 +90,7 @@ from telesmooth.smoothing.metrics import (
     smoothing_metrics,
     tracking_errors,
 )
-from telesmooth.smoothing.offline import with_rest_history
-from telesmooth.arms.joint_vectors import as_per_joint
+from telesmooth.smoothing.offline import OFFLINE_SOLVERS, with_rest_history
 
 __all__ = [
     "Comparison",

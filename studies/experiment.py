@@ -48,6 +48,11 @@ import numpy as np
 
 from telesmooth.arms.modes import plant_modes
 from telesmooth.datasets.lasa import LASA_DEMOS_PER_SHAPE, LASA_SHAPES, WorkspaceMapping
+from telesmooth.diagrams.scenario import Scenario
+from telesmooth.smoothing.methods import METHOD_ALIASES, METHODS, method_name, smooth_recording
+from telesmooth.smoothing.metrics import finite_differences
+from telesmooth.smoothing.offline import OFFLINE_SOLVERS, with_rest_history
+from telesmooth.smoothing.reduced_q import DEFAULT_SIGMA_MIN_RATIO
 from telesmooth.studies.comparison import (
     OperatorSamples,
     method_settings,
@@ -56,11 +61,6 @@ from telesmooth.studies.comparison import (
     run_method,
     run_summary,
 )
-from telesmooth.diagrams.scenario import Scenario
-from telesmooth.smoothing.metrics import finite_differences
-from telesmooth.smoothing.methods import METHOD_ALIASES, METHODS, method_name, smooth_recording
-from telesmooth.smoothing.offline import OFFLINE_SOLVERS, with_rest_history
-from telesmooth.smoothing.reduced_q import DEFAULT_SIGMA_MIN_RATIO
 
 __all__ = [
     "KF_FORMS",

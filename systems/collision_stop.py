@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.safety.stop import (
     STOP_OUTCOMES,
     STOPPABLE_ROUNDING_TOLERANCE,
@@ -21,7 +22,6 @@ from telesmooth.safety.stop import (
     StopPlan,
     stop_params,
 )
-from telesmooth.arms.joint_vectors import as_per_joint
 
 __all__ = [
     "STOP_OUTCOMES",

@@ -16,10 +16,11 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
-from telesmooth.smoothing.kalman import START_PRIORS
-from telesmooth.smoothing.methods import CHAIN_METHODS, METHOD_ALIASES, method_name
+from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.safety.limiter import limiter_params, limiter_rest_state, limiter_step
 from telesmooth.safety.state_codec import VectorCodec
+from telesmooth.smoothing.kalman import START_PRIORS
+from telesmooth.smoothing.methods import CHAIN_METHODS, METHOD_ALIASES, method_name
 from telesmooth.smoothing.model import (
     DEFAULT_LAG,
     DEFAULT_R,
@@ -30,7 +31,6 @@ from telesmooth.smoothing.model import (
 )
 from telesmooth.smoothing.reduced_q import OnlineCks, ReducedQConfig
 from telesmooth.smoothing.state_vector import OnlineCksStateVector
-from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.systems.timing import check_period
 
 __all__ = ["ONLINE_SMOOTHER_METHODS", "ReducedQSmoother", "ReducedQSmootherConfig"]

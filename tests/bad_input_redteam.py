@@ -28,7 +28,6 @@ import io
 import os
 import resource
 import signal
-import stat
 import sys
 import tempfile
 import time
@@ -846,9 +845,9 @@ def main(argv=None) -> int:
     parser.add_argument("--markdown", action="store_true", help="print a Markdown table")
     args = parser.parse_args(argv)
     os.environ.setdefault("MPLBACKEND", "Agg")
-    from telesmooth.scripts.cli import main as cli_main
     import telesmooth.diagrams.simulation  # noqa: F401 - imported once, before the forks
     import telesmooth.scripts.simulate_report  # noqa: F401
+    from telesmooth.scripts.cli import main as cli_main
 
     selected = [c for c in cases()
                 if (args.only is None or c.id.startswith(args.only))

@@ -34,7 +34,6 @@ import numpy as np
 from hypothesis import HealthCheck, assume, settings
 from hypothesis import strategies as st
 
-from telesmooth.user_input import ASCII_BLANKS, quote
 from telesmooth.lcm_types import (
     decode_exact,
     lcmt_onboard_joint_status,
@@ -42,6 +41,7 @@ from telesmooth.lcm_types import (
     lcmt_teleop_haptic_command,
     lcmt_teleop_joint_command,
 )
+from telesmooth.user_input import ASCII_BLANKS, quote
 
 
 def fuzz(max_examples: int):

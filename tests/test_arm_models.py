@@ -268,8 +268,9 @@ def test_add_arm_loads_an_edited_description_not_the_committed_file():
 
 
 def test_lifted_planar_poses_are_reached_by_the_lifted_planar_joints():
-    from telesmooth.arms.air_bearing import planar_joints_to_space_arm, planar_pose_to_space_arm
     from pydrake.math import RollPitchYaw, RotationMatrix
+
+    from telesmooth.arms.air_bearing import planar_joints_to_space_arm, planar_pose_to_space_arm
     from telesmooth.arms.space_arm_ik import SpaceArmKinematics
 
     kinematics = SpaceArmKinematics(SPACE_ARM_6DOF)

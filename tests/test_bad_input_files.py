@@ -12,7 +12,7 @@ import stat
 import pytest
 from bad_input_helpers import assert_one_line_error, run, snapshot, write_trajectory
 
-from telesmooth.atomic_files import Outputs, OutputPathError, atomic_write, write_text
+from telesmooth.atomic_files import OutputPathError, Outputs, atomic_write, write_text
 
 LIMITS = ["--acc-max", "0.05", "--jerk-max", "0.1"]
 

@@ -16,8 +16,8 @@ import time
 import numpy as np
 import pytest
 
-from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.lcm_types import lcmt_teleop_joint_command
+from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.link.udpm_receiver import MAX_INCOMPLETE_MESSAGES, UdpmReceiver
 
 _LC02 = b"LC02"
@@ -236,9 +236,8 @@ def test_the_onboard_process_accounts_for_every_packet_of_a_flood(tmp_path, monk
     receiver's classes plus the packets lost before decoding add up to what was sent."""
     import lcm
 
-    from telesmooth.scripts.cli import main
-
     import telesmooth.scripts.processes as processes
+    from telesmooth.scripts.cli import main
 
     monkeypatch.chdir(tmp_path)
     url = _url()

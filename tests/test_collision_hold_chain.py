@@ -25,7 +25,6 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from telesmooth.arms.collision import ArmCollisionModel
-from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.diagrams.offline import validate_joint_path
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.diagrams.simulation import simulate
@@ -36,6 +35,7 @@ from telesmooth.diagrams.teleoperation import (
     uplink_packets,
 )
 from telesmooth.lcm_types import lcmt_teleop_joint_command
+from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.safety.stop import SAME_SIDE_TOLERANCE_RAD, STOP_OUTCOMES
 from telesmooth.systems.laser_tracker import tracker_record
 

@@ -11,11 +11,11 @@ import json
 import numpy as np
 import pytest
 
-from telesmooth.studies.comparison import compare_methods, method_settings
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.diagrams.simulation import simulate, tool_positions
 from telesmooth.scripts.cli import main
 from telesmooth.smoothing.methods import smooth_recording
+from telesmooth.studies.comparison import compare_methods, method_settings
 
 METHODS = ("original", "kf-predictor", "offline-cks-trajectory", "bmfls", "online-cks")
 

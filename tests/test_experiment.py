@@ -10,6 +10,8 @@ import math
 import numpy as np
 import pytest
 
+from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.scripts.cli import main
 from telesmooth.studies.claims import check_claims, summarize, summarize_cells
 from telesmooth.studies.comparison import response_latency
 from telesmooth.studies.experiment import (
@@ -18,8 +20,6 @@ from telesmooth.studies.experiment import (
     make_tasks,
     run_experiment,
 )
-from telesmooth.diagrams.scenario import load_scenario
-from telesmooth.scripts.cli import main
 
 # Short runs: short holds; the experiment's speed 2.5 (2.5× the pen's speed) is this time scale.
 FAST = "{haptic: {lasa_mapping: {time_scale: 4.0, hold_start_s: 0.5, hold_end_s: 1.0}}}"
@@ -492,8 +492,8 @@ def test_shards_merge_into_the_report_of_the_whole_grid(base, tmp_path, monkeypa
 
 def test_a_method_that_fails_on_one_demonstration_is_reported_not_fatal(base, monkeypatch,
                                                                          tmp_path):
-    from telesmooth.studies import experiment
     from telesmooth.scripts.experiment_report import write_experiment_report
+    from telesmooth.studies import experiment
 
     real = experiment.run_method
 

@@ -11,6 +11,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from fuzz_helpers import (
+    FINITE,
+    _haptic_command,
+    _over_the_wire,
+    _same_floats,
+    fuzz,
+)
 from hypothesis import example, given
 from hypothesis import strategies as st
 
@@ -21,15 +28,6 @@ from telesmooth.systems.haptic_command_receiver import (
     HapticCommandReceiver,
     HapticCommandReceiverConfig,
 )
-
-from fuzz_helpers import (
-    FINITE,
-    _haptic_command,
-    _over_the_wire,
-    _same_floats,
-    fuzz,
-)
-
 
 # ======================================================================================
 # Ground HapticCommandReceiver against an independent model

@@ -15,17 +15,6 @@ import zipfile
 import hypothesis.extra.numpy as hnp
 import numpy as np
 import pytest
-from hypothesis import assume, example, given
-from hypothesis import strategies as st
-
-from telesmooth.user_input import ASCII_BLANKS, quote
-from telesmooth.datasets.haptic_recording import (
-    HapticRecording,
-    read_haptic_csv,
-    read_haptic_npz,
-    write_haptic_npz,
-)
-
 from fuzz_helpers import (
     BAD_TOKENS,
     FINITE,
@@ -41,6 +30,16 @@ from fuzz_helpers import (
     tables,
     temporary_work_dir,
 )
+from hypothesis import assume, example, given
+from hypothesis import strategies as st
+
+from telesmooth.datasets.haptic_recording import (
+    HapticRecording,
+    read_haptic_csv,
+    read_haptic_npz,
+    write_haptic_npz,
+)
+from telesmooth.user_input import ASCII_BLANKS, quote
 
 
 @pytest.fixture(scope="module")

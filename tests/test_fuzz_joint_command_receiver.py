@@ -11,6 +11,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from fuzz_helpers import (
+    DECODE_ERRORS,
+    INT32,
+    _joint_command,
+    _over_the_wire,
+    _same_floats,
+    fuzz,
+)
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -21,16 +29,6 @@ from telesmooth.systems.joint_command_receiver import (
     JointCommandReceiver,
     JointCommandReceiverConfig,
 )
-
-from fuzz_helpers import (
-    DECODE_ERRORS,
-    INT32,
-    _joint_command,
-    _over_the_wire,
-    _same_floats,
-    fuzz,
-)
-
 
 # ======================================================================================
 # Onboard JointCommandReceiver against an independent model

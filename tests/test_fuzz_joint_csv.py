@@ -14,16 +14,6 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import assume, example, given
-from hypothesis import strategies as st
-
-from telesmooth.user_input import ASCII_BLANKS, quote
-from telesmooth.smoothing.trajectory_io import (
-    parse_csv_number,
-    read_csv_table,
-    read_joint_csv,
-)
-
 from fuzz_helpers import (
     BAD_TOKENS,
     FINITE,
@@ -39,6 +29,15 @@ from fuzz_helpers import (
     tables,
     temporary_work_dir,
 )
+from hypothesis import assume, example, given
+from hypothesis import strategies as st
+
+from telesmooth.smoothing.trajectory_io import (
+    parse_csv_number,
+    read_csv_table,
+    read_joint_csv,
+)
+from telesmooth.user_input import ASCII_BLANKS, quote
 
 
 @pytest.fixture(scope="module")

@@ -10,10 +10,6 @@ from __future__ import annotations
 import struct
 
 import pytest
-from hypothesis import assume, given
-from hypothesis import strategies as st
-
-
 from fuzz_helpers import (
     DECODE_ERRORS,
     LCM_TYPES,
@@ -21,7 +17,8 @@ from fuzz_helpers import (
     fuzz,
     lcm_messages,
 )
-
+from hypothesis import assume, given
+from hypothesis import strategies as st
 
 # ======================================================================================
 # LCM decoding

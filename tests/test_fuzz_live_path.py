@@ -8,8 +8,14 @@ accepted is not altered).
 
 from __future__ import annotations
 
-
 import numpy as np
+from fuzz_helpers import (
+    DECODE_ERRORS,
+    _decode,
+    _haptic_command,
+    _joint_command,
+    fuzz,
+)
 from hypothesis import assume, example, given
 from hypothesis import strategies as st
 
@@ -21,15 +27,6 @@ from telesmooth.lcm_types import (
 from telesmooth.systems.haptic_command_receiver import (
     HapticCommandReceiver,
 )
-
-from fuzz_helpers import (
-    DECODE_ERRORS,
-    _decode,
-    _haptic_command,
-    _joint_command,
-    fuzz,
-)
-
 
 # ======================================================================================
 # The live path: bytes on the LCM channel -> subscriber -> receiver (a whole process)

@@ -8,21 +8,20 @@ everything by the logged sequence number instead of by time.
 
 import numpy as np
 import pytest
+from core_fixtures import operator_recording
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import LogVectorOutput
 
 from telesmooth.smoothing.fixed_lag import FixedLagSmoother
 from telesmooth.smoothing.model import JerkModel
+from telesmooth.smoothing.online_hard import online_hard_run
 from telesmooth.smoothing.reduced_q import OnlineCks, ReducedQConfig
 from telesmooth.smoothing.state_vector import OnlineCksStateVector
 from telesmooth.systems.delay_fifo import DelayFifo, DelayFifoConfig
-from telesmooth.smoothing.online_hard import online_hard_run
 from telesmooth.systems.period_mean import PeriodMean, PeriodMeanConfig
 from telesmooth.systems.reduced_q_smoother import ReducedQSmoother, ReducedQSmootherConfig
 from telesmooth.systems.uplink import Uplink, UplinkConfig
-
-from core_fixtures import operator_recording
 
 DT = 0.25
 LAG = 3

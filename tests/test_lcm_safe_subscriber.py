@@ -7,17 +7,17 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.lcm import LcmInterfaceSystem, LcmSubscriberSystem
 
-from telesmooth.lcm_types.channels import (
-    ONBOARD_JOINT_STATUS,
-    TELEOP_HAPTIC_COMMAND,
-    TELEOP_JOINT_COMMAND,
-)
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.diagrams.teleoperation import MakeGroundDiagram, MakeOnboardDiagram
 from telesmooth.lcm_types import (
     lcmt_onboard_joint_status,
     lcmt_teleop_haptic_command,
     lcmt_teleop_joint_command,
+)
+from telesmooth.lcm_types.channels import (
+    ONBOARD_JOINT_STATUS,
+    TELEOP_HAPTIC_COMMAND,
+    TELEOP_JOINT_COMMAND,
 )
 from telesmooth.systems.joint_command_receiver import JointCommandReceiver
 from telesmooth.systems.lcm_safe_subscriber import LcmSafeSubscriber

@@ -6,14 +6,15 @@ from pydrake.lcm import DrakeLcm
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
+from test_ground_chain import TickTable
 
-from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.lcm_types import (
     lcmt_onboard_joint_status,
     lcmt_teleop_collision_event,
     lcmt_teleop_haptic_command,
     lcmt_teleop_joint_command,
 )
+from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.systems.collision_event_sender import CollisionEventSender
 from telesmooth.systems.haptic_command_receiver import (
     HapticCommandReceiver,
@@ -26,8 +27,6 @@ from telesmooth.systems.joint_command_receiver import (
 from telesmooth.systems.joint_command_sender import JointCommandSender
 from telesmooth.systems.joint_status_sender import JointStatusSender
 from telesmooth.systems.uplink import Uplink
-
-from test_ground_chain import TickTable
 
 JOINTS = ("shoulder", "elbow")
 LOWER, UPPER = [-2.0, -2.0], [2.0, 2.0]

@@ -159,8 +159,8 @@ def test_a_restarted_ground_takes_only_valid_telemetry_as_the_robot_pose():
 
     import lcm
 
-    from telesmooth.lcm_types.channels import ONBOARD_JOINT_STATUS
     from telesmooth.diagrams.scenario import load_scenario
+    from telesmooth.lcm_types.channels import ONBOARD_JOINT_STATUS
     from telesmooth.scripts.processes import robot_commanded_pose
 
     scenario = load_scenario()

@@ -20,8 +20,7 @@ import warnings
 import lcm
 import pytest
 
-from telesmooth.lcm_types import channels
-from telesmooth.lcm_types import lcmt_onboard_joint_status, lcmt_teleop_joint_command
+from telesmooth.lcm_types import channels, lcmt_onboard_joint_status, lcmt_teleop_joint_command
 from telesmooth.link import relay
 from telesmooth.link.faults import LinkFaultConfig, LinkFaultModel
 

@@ -16,9 +16,9 @@ from pydrake.trajectories import PiecewisePolynomial
 
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_forward_kinematics
 from telesmooth.datasets.haptic_recording import HapticRecording, write_haptic_csv
-from telesmooth.studies.comparison import OperatorSamples, prepare_comparison, run_method
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.diagrams.simulation import run_metrics, simulate
+from telesmooth.studies.comparison import OperatorSamples, prepare_comparison, run_method
 from telesmooth.systems.flexible_arm import FlexibleArmConfig, FlexibleJointArm
 from telesmooth.systems.laser_tracker import tracker_record
 

@@ -28,9 +28,9 @@ from telesmooth.diagrams.offline import (
     validate_joint_path,
 )
 from telesmooth.diagrams.scenario import load_scenario, make_haptic_recording
+from telesmooth.smoothing.kalman import rest_start_prior
 from telesmooth.smoothing.metrics import VIOLATION_RTOL
 from telesmooth.smoothing.model import JerkModel
-from telesmooth.smoothing.kalman import rest_start_prior
 from telesmooth.smoothing.offline import OfflineCksResult, solve_offline_cks
 from telesmooth.systems.laser_tracker import tracker_record
 

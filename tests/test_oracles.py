@@ -8,9 +8,8 @@ import dataclasses
 import itertools
 
 import numpy as np
-import pytest
-
 import oracles
+import pytest
 
 
 def random_spd(rng: np.random.Generator, n: int) -> np.ndarray:

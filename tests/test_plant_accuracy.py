@@ -18,8 +18,8 @@ import pytest
 from pydrake.systems.analysis import Simulator
 
 import telesmooth.studies.comparison as comparison
-from telesmooth.studies.comparison import prepare_comparison, run_method, set_improvement_ratios
 from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.studies.comparison import prepare_comparison, run_method, set_improvement_ratios
 
 REFERENCE_ACCURACY = 1e-6
 

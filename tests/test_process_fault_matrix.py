@@ -47,9 +47,9 @@ from process_fixtures import (
     read_rows,
 )
 
-from telesmooth.lcm_types.channels import ONBOARD_JOINT_STATUS, TELEOP_JOINT_COMMAND
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.lcm_types import lcmt_onboard_joint_status, lcmt_teleop_joint_command
+from telesmooth.lcm_types.channels import ONBOARD_JOINT_STATUS, TELEOP_JOINT_COMMAND
 from telesmooth.link.auth import generate_key_file
 from telesmooth.systems.collision_stop import STOP_OUTCOMES
 from telesmooth.systems.link_guard import MODE_TRACK, fd_limits_ratio

@@ -28,11 +28,10 @@ from process_fixtures import (
     read_rows,
 )
 
-from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.diagrams.scenario import load_scenario
-from telesmooth.lcm_types import lcmt_teleop_joint_command
+from telesmooth.lcm_types import lcmt_onboard_joint_status, lcmt_teleop_joint_command
+from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.link.auth import generate_key_file, sign
-from telesmooth.lcm_types import lcmt_onboard_joint_status
 from telesmooth.systems.link_guard import MODE_HELD, MODE_STOPPING, fd_limits_ratio
 
 pytestmark = pytest.mark.process

@@ -33,9 +33,9 @@ from process_fixtures import (
     read_rows,
 )
 
-from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.lcm_types import lcmt_teleop_joint_command
+from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.systems.link_guard import MODE_TRACK
 
 pytestmark = pytest.mark.process

@@ -4,9 +4,8 @@ The same scenario simulated in one process must send exactly the same commands; 
 the uplink channel must decode with our types at 4 Hz; the onboard process must accept them.
 """
 
-import json
-
 import csv
+import json
 import os
 import signal
 import subprocess
@@ -19,10 +18,10 @@ import numpy as np
 import pytest
 from process_fixtures import PROCESS_TEST_TIMEOUT_S
 
-from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.diagrams.simulation import simulate
 from telesmooth.lcm_types import lcmt_teleop_joint_command
+from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.link.auth import generate_key_file, verify
 from telesmooth.link.session import session_counter
 

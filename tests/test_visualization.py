@@ -14,6 +14,7 @@ from telesmooth.arms.workspace import AIR_BEARING_WORKSPACE, SPACE_ARM_WORKSPACE
 from telesmooth.datasets.haptic_recording import SPATIAL_POSE_NAMES, HapticRecording
 from telesmooth.diagrams import visualization
 from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.simulation import record_meshcat_html
 from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram
 from telesmooth.diagrams.visualization import (
     AddRobotVisualizer,
@@ -23,7 +24,6 @@ from telesmooth.diagrams.visualization import (
     draw_workspace,
     local_meshcat,
 )
-from telesmooth.diagrams.simulation import record_meshcat_html
 from telesmooth.systems.flexible_arm import FlexibleArmConfig, FlexibleJointArm
 
 REPO = Path(__file__).resolve().parents[1]
