@@ -357,7 +357,7 @@ class Outputs:
             if temporary != destination:
                 os.chmod(temporary, _new_file_mode(destination))
                 os.replace(temporary, destination)
-        for (option, path, staging), plan in zip(self._folders, plans):
+        for (_option, path, staging), plan in zip(self._folders, plans):
             if plan is None:            # a new folder: one rename puts it all in place
                 os.chmod(staging, 0o777 & ~_umask())
                 os.rename(staging, path)

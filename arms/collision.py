@@ -1,8 +1,8 @@
 """Collision queries of the pre-simulator: signed distances between a rigid arm and its workspace.
 
 The ground station's pre-simulator shows the newest inverse-kinematics target; before that
-target is queued for the robot (docs/method.md §5.2) we ask how close the rigid arm at that configuration
-comes to the workspace (obstacle boxes and bounding-box walls) and to itself.
+target is queued for the robot (docs/method.md §5.2) we ask how close the rigid arm at that
+configuration comes to the workspace (obstacle boxes and bounding-box walls) and to itself.
 :class:`ArmCollisionModel` answers that question for one joint vector at a time. It is plain
 kinematics: a continuous (``time_step = 0``), never simulated MultibodyPlant with the rigid arm
 model and the static workspace, connected to a SceneGraph inside a private two-system diagram

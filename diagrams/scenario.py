@@ -225,7 +225,7 @@ class Scenario:
             raise ValueError(
                 f"simulation_duration_s = {self.simulation_duration_s!r} must be positive")
         try:
-            self.onboard.arm_description       # the drive's per-joint values fit the arm
+            _ = self.onboard.arm_description  # raises unless the drive's values fit the arm
         except ValueError as error:
             raise ValueError(f"onboard.{error}") from None
         names = self.arm_description.joint_names

@@ -302,7 +302,8 @@ def MakeLinkGuard(scenario: Scenario, *, initial_position_rad,
         model = ArmCollisionModel(
             arm, scenario.workspace_or_default,
             distance_horizon_m=scenario.collision_checker.distance_horizon_m)
-    check = PreSimulatorPoseCheck(model, safety_margin_m=scenario.collision_checker.safety_margin_m,
+    check = PreSimulatorPoseCheck(model,
+                                  safety_margin_m=scenario.collision_checker.safety_margin_m,
                                   lower_rad=arm.joint_lower_rad, upper_rad=arm.joint_upper_rad)
     return LinkGuard(scenario.link_guard, joint_names=names, lower_rad=arm.joint_lower_rad,
                      upper_rad=arm.joint_upper_rad, initial_position_rad=initial_position_rad,

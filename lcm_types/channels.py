@@ -1,5 +1,8 @@
 """LCM channel names and default URL, defined once for both processes."""
 
+import ipaddress
+import urllib.parse
+
 TELEOP_HAPTIC_COMMAND = "TELEOP_HAPTIC_COMMAND"
 """Haptic device samples (lcmt_teleop_haptic_command), 100 Hz, device → ground."""
 
@@ -18,9 +21,6 @@ ALL_CHANNELS = (TELEOP_HAPTIC_COMMAND, TELEOP_JOINT_COMMAND, ONBOARD_JOINT_STATU
 DEFAULT_LCM_URL = "udpm://239.255.76.67:7667?ttl=0"
 """Multicast on this host only (ttl=0): never let teleoperation traffic leave the machine
 unless you deliberately configure a routed URL for a two-machine set-up."""
-
-import ipaddress
-import urllib.parse
 
 LCM_URL_SCHEMES = ("udpm", "memq")
 """The LCM providers the processes use: UDP multicast between processes, ``memq://`` within

@@ -92,7 +92,7 @@ class UplinkKeyPermissionWarning(UserWarning):
     (:class:`UplinkKeyError`), as ssh refuses such a private key."""
 
 
-_KEY_LIKE = re.compile(r"[0-9a-fA-F]{%d,}" % (2 * MIN_KEY_BYTES))
+_KEY_LIKE = re.compile(rf"[0-9a-fA-F]{{{2 * MIN_KEY_BYTES},}}")
 """A string that looks like key material (at least a minimal key's hex digits)."""
 
 

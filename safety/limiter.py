@@ -2,9 +2,9 @@
 
 The online counterpart of the trajectory constraint of docs/method.md §2.6. At every
 4 Hz tick k the ground station has the fixed-lag estimate r_k (the BMFLS / Online-CKS output,
-docs/method.md §3) and must choose the command p_k it sends, with the commands already sent held fixed.
-The finite differences of the *sent* sequence (history p_{−1} = p_{−2} = p_{−3} = q_start, the
-robot at rest, docs/method.md §2.6)
+docs/method.md §3) and must choose the command p_k it sends, with the commands already sent held
+fixed. The finite differences of the *sent* sequence (history p_{−1} = p_{−2} = p_{−3} = q_start,
+the robot at rest, docs/method.md §2.6)
 
     v_k = (p_k − p_{k−1}) / Δt
     a_k = (p_k − 2 p_{k−1} + p_{k−2}) / Δt²                          = (v_k − v_{k−1}) / Δt
@@ -333,7 +333,7 @@ def stoppable_polygon(
     box = [((1.0, 0.0), 1.0), ((-1.0, 0.0), 1.0), ((0.0, 1.0), 1.0), ((0.0, -1.0), 1.0)]
     poly = np.zeros((1, 2))  # S_0 = {rest}
     steps = 0
-    for steps in range(1, max_steps + 1):
+    for steps in range(1, max_steps + 1):  # noqa: B007 (read after the loop: the count)
         summed = _convex_hull(np.vstack([poly + segment, poly - segment]))  # S ⊕ [−1, 1] b̃
         new = summed @ m_inv.T  # M̃⁻¹ (…): linear, det 1, keeps order and convexity
         for normal, offset in box:
@@ -590,8 +590,8 @@ def limiter_rest_state(params: LimiterParams, q, *, field: str = "q") -> Limiter
 def limiter_moving_state(params: LimiterParams, history, target) -> LimiterState:
     """Just after the sent commands ``history`` = [p_{k−3}, p_{k−2}, p_{k−1}] (3, J), oldest
     first: nominal (p, v, a) = their FD values, target history (r_{k−2}, r_{k−1}) =
-    ``target`` (2, J), or a single target (J,) twice (a target at rest there). p_{k−4} (one before the oldest) is taken equal to p_{k−3}; it
-    only enters the jerk of the tick already sent.
+    ``target`` (2, J), or a single target (J,) twice (a target at rest there). p_{k−4} (one before
+    the oldest) is taken equal to p_{k−3}; it only enters the jerk of the tick already sent.
 
     The FD state is taken as it is; the next :func:`limiter_step` scales a state that lies a
     few ulps outside S back onto it (module docstring, Floating point 3), so a history whose

@@ -2,8 +2,8 @@
 
 On a pre-simulator collision (the ground's ``DelayFifo`` with ``on_collision = "stop"``) and
 when the uplink falls silent (the onboard ``LinkGuard``), the robot must come to rest. The
-paper's hold (docs/method.md §5.2) re-sends the last command: the robot stops with a velocity step and
-the finite-difference (FD) acceleration and jerk limits are knowingly broken. The stop
+paper's hold (docs/method.md §5.2) re-sends the last command: the robot stops with a velocity step
+and the finite-difference (FD) acceleration and jerk limits are knowingly broken. The stop
 planned here instead brings the *sent* command sequence to rest from the FD motion it
 actually had (velocity and acceleration of the last three sent commands), with every FD
 acceleration and jerk within the limits (and the velocity limit if one is given), and then

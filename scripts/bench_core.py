@@ -188,7 +188,8 @@ def bench_offline(sizes, repeat, max_drake_n=10_000):
                 row[f"{mode}_max_position_difference_rad"] = float(np.max(np.abs(
                     positions["drake"] - positions["banded_ip"])))
         rows.append(row)
-        print(f"  offline N={n:>7}: RTS {row['rts_s']:8.3f} s {row['rts_peak_above_baseline_mb']:7.0f}"
+        print(f"  offline N={n:>7}: RTS {row['rts_s']:8.3f} s "
+              f"{row['rts_peak_above_baseline_mb']:7.0f}"
               " MB | " + " | ".join(
                   f"{mode} {solver} {row[f'{mode}_{solver}_s']:8.3f} s "
                   f"({row[f'{mode}_{solver}_over_rts']:5.1f}× RTS, "
@@ -238,7 +239,7 @@ def _online_rows(lags, ticks, repeat) -> dict:
         for method in ("superstate", "recursion"):
             smoother = FixedLagSmoother(model, lag=lag, method=method)
 
-            def stream():
+            def stream(smoother=smoother):
                 state = smoother.initial_state(z[0])
                 for k in range(ticks):
                     state = smoother.step(state, z[k])
@@ -248,7 +249,7 @@ def _online_rows(lags, ticks, repeat) -> dict:
             row[f"{method}_us_per_tick"] = 1e6 * seconds / ticks
         online = OnlineCks(model, max_acceleration=MAX_ACCELERATION, max_jerk=MAX_JERK, lag=lag)
 
-        def online_stream():
+        def online_stream(online=online):
             state = online.initial_state(z[0])
             for k in range(ticks):
                 state = online.step(state, z[k])[0]
@@ -260,7 +261,7 @@ def _online_rows(lags, ticks, repeat) -> dict:
         limits = limiter_params(dt_s=DEFAULT_DT_S, max_acceleration=MAX_ACCELERATION,
                                 max_jerk=MAX_JERK, num_joints=NUM_JOINTS)
 
-        def hard_stream():
+        def hard_stream(online=online, limits=limits):
             state = online.initial_state(z[0])
             limiter = limiter_rest_state(limits, z[0])
             for k in range(ticks):
@@ -274,7 +275,7 @@ def _online_rows(lags, ticks, repeat) -> dict:
             state, output, _ = online.step(state, z[k])
             estimates.append(output[:, 0].copy())
 
-        def limiter_alone():
+        def limiter_alone(limits=limits, estimates=estimates):
             limiter = limiter_rest_state(limits, z[0])
             for estimate in estimates:
                 limiter, _ = limiter_step(limits, limiter, estimate)

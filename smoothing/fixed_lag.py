@@ -213,6 +213,7 @@ class FixedLagSmoother:
         s = hs0[:, 0] + self.model.r
         innovation = z - prior[:, 0, 0]
         posterior = prior + sht * (innovation / s)[:, None, None]
-        new_cross = sigma_cross - sht[:, :, :, None] * hs0[:, None, None, :] / s[:, None, None, None]
+        new_cross = (sigma_cross
+                     - sht[:, :, :, None] * hs0[:, None, None, :] / s[:, None, None, None])
         new_cross[:, 0] = 0.5 * (new_cross[:, 0] + np.swapaxes(new_cross[:, 0], -1, -2))
         return FixedLagState(blocks_scaled=posterior, covariance=new_cross, steps=state.steps + 1)

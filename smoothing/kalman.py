@@ -1,4 +1,5 @@
-"""Kalman filter and Rauch–Tung–Striebel fixed-interval smoother (Offline-KS), docs/method.md §3, §7.
+"""Kalman filter and Rauch–Tung–Striebel fixed-interval smoother (Offline-KS),
+docs/method.md §3, §7.
 
 All joints are processed at once: measurements are ``(num_samples, num_joints)``, states
 ``(num_samples, num_joints, 4)`` and covariances ``(num_samples, num_joints, 4, 4)``, in physical
@@ -52,7 +53,8 @@ def rest_prior(start_position, model: JerkModel, cov_diagonal=OFFLINE_REST_PRIOR
 START_PRIORS = ("rest", "loose")
 """How the offline smoothers start: ``"rest"``, the robot at rest at the start pose one tick
 before the first sample (:func:`rest_start_prior`, as the online smoothers start), or
-``"loose"``, the paper's prior diag(r, 1e-4, 1e-3, 1e-2) at the first sample (:func:`rest_prior`)."""
+``"loose"``, the paper's prior diag(r, 1e-4, 1e-3, 1e-2) at the first sample
+(:func:`rest_prior`)."""
 
 
 def rest_start_prior(start_position, model: JerkModel) -> GaussianPrior:
@@ -118,7 +120,8 @@ def _sigma_rows(model: JerkModel, sigma_schedule, num_samples: int) -> np.ndarra
     if not np.all(np.isfinite(schedule[1:])) or np.any(schedule[1:] <= 0):
         row, col = np.argwhere(~(np.isfinite(schedule[1:]) & (schedule[1:] > 0)))[0]
         raise ValueError(
-            f"sigma_schedule[{row + 1}, {col}] = {float(schedule[row + 1, col])!r} for joint {col} "
+            f"sigma_schedule[{row + 1}, {col}] = {float(schedule[row + 1, col])!r} "
+            f"for joint {col} "
             "must be finite and > 0"
         )
     return schedule
@@ -195,8 +198,8 @@ def rts_smoother(
         x̂_{k|N} = x̂_{k|k} + C_k (x̂_{k+1|N} − x̂_{k+1|k})
         P_{k|N} = P_{k|k} + C_k (P_{k+1|N} − P_{k+1|k}) C_kᵀ
 
-    The means equal the minimiser of the unconstrained IPLM objective (docs/method.md §2.3), which is
-    what the tests check against a dense solve.
+    The means equal the minimiser of the unconstrained IPLM objective (docs/method.md §2.3), which
+    is what the tests check against a dense solve.
     """
     x_pred, p_pred, x_filt, p_filt = _filter_scaled(measurements, model, prior, sigma_schedule)
     phi = SCALED_TRANSITION

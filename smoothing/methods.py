@@ -1,4 +1,5 @@
-"""Every smoothing method of the paper behind one call, aligned sample by sample (docs/method.md §7).
+"""Every smoothing method of the paper behind one call, aligned sample by sample
+(docs/method.md §7).
 
 ``smooth_recording`` returns, for each input sample k, the estimate of that sample and the delay
 after which the ground station sends it:
@@ -254,7 +255,8 @@ def smooth_recording(
         }
         if not result.is_success:
             raise RuntimeError(
-                f"Offline-CKS failed: {dict(zip(joint_names or range(num_joints), result.solution_results))}; "
+                "Offline-CKS failed: "
+                f"{dict(zip(joint_names or range(num_joints), result.solution_results))}; "
                 f"violated constraints: {result.infeasible_constraints}"
             )
         return SmoothedRecording(name, result.states[:, :, 0].copy(), result.states, 0.0,

@@ -1,4 +1,5 @@
-"""Evaluation metrics (docs/method.md §6): limits, deformation, Cartesian deformation, response errors.
+"""Evaluation metrics (docs/method.md §6): limits, deformation, Cartesian deformation, response
+errors.
 
 Finite differences of a sent position sequence p_k (period Δt):
 
@@ -76,7 +77,8 @@ def cartesian_deformation(
 
 
 def tracking_errors(commanded_xy, measured_xy) -> np.ndarray:
-    """e(i) = ‖x_cmd(i) − x^A(i)‖, the response error against the measured track (docs/method.md §6)."""
+    """e(i) = ‖x_cmd(i) − x^A(i)‖, the response error against the measured track
+    (docs/method.md §6)."""
     return np.linalg.norm(np.asarray(commanded_xy) - np.asarray(measured_xy), axis=-1)
 
 
@@ -119,7 +121,8 @@ def smoothing_metrics(
         "num_samples": int(q_hat.shape[0]),
         "dt_s": float(dt_s),
         "limits": {
-            "max_acceleration_rad_per_s2": np.broadcast_to(max_acceleration, q_hat.shape[1:]).tolist(),
+            "max_acceleration_rad_per_s2":
+                np.broadcast_to(max_acceleration, q_hat.shape[1:]).tolist(),
             "max_jerk_rad_per_s3": np.broadcast_to(max_jerk, q_hat.shape[1:]).tolist(),
         },
         "fd_acceleration": limit_statistics(finite_differences(q_hat, dt_s, 2), max_acceleration),
@@ -145,5 +148,6 @@ def smoothing_metrics(
         metrics["velocity_deformation_rad_per_s"] = deformation_statistics(
             finite_differences(q_hat, dt_s, 1), velocity_original)
     if forward_kinematics is not None:
-        metrics["cartesian_deformation_m"] = cartesian_deformation(q_hat, q_org, forward_kinematics)
+        metrics["cartesian_deformation_m"] = cartesian_deformation(q_hat, q_org,
+                                                                   forward_kinematics)
     return metrics

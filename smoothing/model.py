@@ -6,13 +6,13 @@ position sample of variance r (rad²):
 
     ẋ = A x + G w,   z = H x + v,   E[w(t) w(s)] = σ δ(t − s),   E[v²] = r
 
-Exact discretisation with period Δt (docs/method.md §1.2): ``x_{k+1} = Φ x_k + w_k``, ``w_k ~ N(0, Q)``,
-``Q_ab = σ Δt^(7−a−b) / ((7−a−b) (3−a)! (3−b)!)``.
+Exact discretisation with period Δt (docs/method.md §1.2): ``x_{k+1} = Φ x_k + w_k``,
+``w_k ~ N(0, Q)``, ``Q_ab = σ Δt^(7−a−b) / ((7−a−b) (3−a)! (3−b)!)``.
 
-Scaled state (docs/method.md §1.2): with ``T = diag(1, Δt, Δt², Δt³)`` and ``x̃ = T x``, the transition
-``Φ̃ = T Φ T⁻¹`` no longer depends on Δt and ``Q̃ = σ Δt⁷ Q1``. Every estimator in this package
-works in the scaled state internally (cond(Q) in physical units grows like Δt⁻⁶ at 100 Hz) and
-maps back with ``x = T⁻¹ x̃``.
+Scaled state (docs/method.md §1.2): with ``T = diag(1, Δt, Δt², Δt³)`` and ``x̃ = T x``, the
+transition ``Φ̃ = T Φ T⁻¹`` no longer depends on Δt and ``Q̃ = σ Δt⁷ Q1``. Every estimator in this
+package works in the scaled state internally (cond(Q) in physical units grows like Δt⁻⁶ at 100 Hz)
+and maps back with ``x = T⁻¹ x̃``.
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
 """Offline-CKS: the inequality-constrained fixed-interval smoother as a Drake MathematicalProgram.
 
-docs/method.md §2.5. Per joint, with decision variables Y ∈ ℝ^{4×N} (the scaled states y_k = T x_k),
-minimise the Kalman-smoother negative log-likelihood multiplied by r:
+docs/method.md §2.5. Per joint, with decision variables Y ∈ ℝ^{4×N}
+(the scaled states y_k = T x_k), minimise the Kalman-smoother negative log-likelihood multiplied
+by r:
 
     f(Y) = ½ Σ_k (z_k − y_k[0])²
          + ½ (y_0 − T x̄_0)ᵀ W_0 (y_0 − T x̄_0),                 W_0 = r (T P_0 T)⁻¹

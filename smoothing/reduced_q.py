@@ -9,7 +9,8 @@ Each 4 Hz cycle, per joint:
     B2: as B1 but re-filter the whole window (the last L+1 steps) from the stored checkpoint
 
     dec(σ) = max(ρ σ, σ_min)     multiplicative step (default, ρ = 0.8)
-    dec(σ) = max(σ − Δσ, σ_min)  additive step (the paper's literal Δσ; ineffective, docs/method.md §4)
+    dec(σ) = max(σ − Δσ, σ_min)  additive step (the paper's literal Δσ; ineffective,
+                                 docs/method.md §4)
 
 σ never increases within an operation. The σ reached is stored per operator and joint and is
 the next operation's σ_0 (``save_operator_sigma`` / ``load_operator_sigma``).
@@ -161,7 +162,9 @@ class OnlineCks:
         self.max_acceleration = as_per_joint(
             "max_acceleration_rad_per_s2", max_acceleration, n, joint_names, allow_inf=True
         )
-        self.max_jerk = as_per_joint("max_jerk_rad_per_s3", max_jerk, n, joint_names, allow_inf=True)
+        self.max_jerk = as_per_joint(
+            "max_jerk_rad_per_s3", max_jerk, n, joint_names, allow_inf=True
+        )
         self.sigma_min = (
             np.full(n, config.sigma_min)
             if config.sigma_min is not None
@@ -297,7 +300,8 @@ def load_operator_sigma(path, operator: str, joint_names) -> np.ndarray:
             f"operator = {operator!r} has no stored sigma in {path}; known: {sorted(operators)}"
         )
     stored = operators[operator]
-    return as_per_joint(f"sigma of operator {operator!r}", stored, len(joint_names), list(joint_names))
+    return as_per_joint(f"sigma of operator {operator!r}", stored, len(joint_names),
+                        list(joint_names))
 
 
 def stored_operators(path) -> list[str]:

@@ -39,7 +39,7 @@ _LINE_BREAK = re.compile(r"\r\n|\r|\n")
 """What ends a physical line, for csv.reader on a file opened with ``newline=""``."""
 _LINE_BREAK_BYTES = re.compile(rb"\r\n|\r|\n")
 _PHYSICAL_LINE = re.compile(r"[^\r\n]*(?:\r\n|\r|\n)|[^\r\n]+\Z")
-_LONG_LINE = re.compile(r"[^\r\n]{%d}" % (MAX_CSV_LINE_CHARS + 1))
+_LONG_LINE = re.compile(rf"[^\r\n]{{{MAX_CSV_LINE_CHARS + 1}}}")
 RESERVED_JOINT_NAMES = ("sent_t",)
 """Columns the smoothed output adds after the joints; no joint may be named so."""
 MAX_ABS_JOINT_RAD = 1e6
@@ -179,7 +179,7 @@ def read_csv_table(path, *, expected_header_hint: str, after_time_hint: str):
         raise ValueError(f"{path}: line {line} is longer than {MAX_CSV_LINE_CHARS} characters "
                          "(is this a CSV file?)")
     rows = _numbered_rows(path, text)
-    for first_line, cells in rows:
+    for _first_line, cells in rows:
         header = [cell.strip() for cell in cells]
         break
     else:

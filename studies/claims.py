@@ -255,7 +255,8 @@ def _share_over(records: list[dict], label: str) -> float:
 
 
 def check_claims(summary: dict, kf_form: str = "kf") -> dict:
-    """A verdict per claim of docs/method.md §7 for one cell, with the figures and the rule applied.
+    """A verdict per claim of docs/method.md §7 for one cell, with the figures and the rule
+    applied.
 
     Every claim uses the same KF form, ``kf_form`` (the other form's figures are given beside
     it where it ran), and the paper's methods: KF, Offline-KS, Offline-CKS (the state box),

@@ -372,7 +372,8 @@ def prepare_comparison(scenario: Scenario,
     return ComparisonSetup(
         scenario=scenario, joint_names=names, period_s=period, t_s=t_s, q_original=z,
         q_start=q_start, num_operator_samples=num_operator_samples, duration_s=duration,
-        ramp_s=ramp, max_acceleration=a_max, max_jerk=j_max, operator_tool_m=tool_positions(scenario, z),
+        ramp_s=ramp, max_acceleration=a_max, max_jerk=j_max,
+        operator_tool_m=tool_positions(scenario, z),
         collision_model=collision_model)
 
 

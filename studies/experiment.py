@@ -15,8 +15,9 @@ from σ_0). Each cell is summarised and judged on its own
 
 Operator speed is a multiple of the demonstrator's own hand speed: the LASA clock is stretched by
 the default ``lasa_mapping.time_scale`` (10, the hand's own speed) divided by the speed (speed 2.5
-is time_scale 4), whatever time scale the base scenario has. At hand speed the raw commands break the acceleration limit on a few
-per cent of the samples only, so the limits hardly bind; faster, they do.
+is time_scale 4), whatever time scale the base scenario has. At hand speed the raw commands break
+the acceleration limit on a few per cent of the samples only, so the limits hardly bind; faster,
+they do.
 
 Every demonstration is mapped into the air-bearing arm's workspace at that speed
 (:class:`~telesmooth.datasets.lasa.WorkspaceMapping`: 10:1 in space), run

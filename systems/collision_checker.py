@@ -1,8 +1,8 @@
 """The pre-simulator's collision checker: a latched collision flag for the 4 Hz delay FIFO.
 
 The ground station shows the newest inverse-kinematics target in a pre-simulator 0.75 s
-ahead of the robot (docs/method.md §5). This system checks that newest target, undelayed, against the
-workspace and the arm itself at the IK rate (100 Hz) and reports a collision flag. The delay
+ahead of the robot (docs/method.md §5). This system checks that newest target, undelayed, against
+the workspace and the arm itself at the IK rate (100 Hz) and reports a collision flag. The delay
 FIFO reads the flag only at 4 Hz, so the flag it reads is latched: any collision among the
 samples of the last ``latch_s`` seconds, long enough that a collision between two 4 Hz ticks is
 never missed. On that flag the FIFO refills its queue with the command already sent and the

@@ -1,7 +1,7 @@
 """The ground's collision stop: the pre-simulator's pose check and the planner it uses.
 
-On a pre-simulator collision the FIFO either holds (the paper's policy, docs/method.md §5.2) or, with
-``on_collision = "stop"``, plays out a jerk-limited stop planned from the sent motion. The
+On a pre-simulator collision the FIFO either holds (the paper's policy, docs/method.md §5.2) or,
+with ``on_collision = "stop"``, plays out a jerk-limited stop planned from the sent motion. The
 planning is the pure core :func:`telesmooth.safety.stop.plan_stop` (see its module for how a
 plan is made and when it falls back to the hold); this module adds what ties it to a
 scenario: :class:`PreSimulatorPoseCheck` (the collision model and the joint limits as a pose

@@ -245,7 +245,8 @@ def RampSetPoint(num_joints: int, ramp_duration_s: float, lead_s: float = 0.0, *
     elapsed = (time + float(lead_s)) - start_time
     fraction = symbolic_min(symbolic_max(elapsed / period, 0.0), 1.0)
     moving = logical_and(elapsed >= 0.0, elapsed < period)
-    position = [if_then_else(fraction >= 1.0, target[i], start[i] + fraction * (target[i] - start[i]))
+    position = [if_then_else(fraction >= 1.0, target[i],
+                             start[i] + fraction * (target[i] - start[i]))
                 for i in range(n)]
     velocity = [if_then_else(moving, (target[i] - start[i]) / period, 0.0) for i in range(n)]
     inputs = [start_time] + start + target
@@ -467,9 +468,9 @@ class CommandInterpolator(Diagram):
     the ramp and the time into the set-point, so nothing runs in Python at the plant rate.
 
     State (the gate's, discrete, updated every poll period P (``poll_period_s``, or
-    ``command_period_s``, or 10 ms) at t_k = ``poll_offset_s`` + k·P): the ramp [t₀, q₀ (n), q₁ (n)] (start
-    time, start, target), the rejected flag (1), and [rejected-command count, last rejected
-    command (n)] (to count a held invalid command once).
+    ``command_period_s``, or 10 ms) at t_k = ``poll_offset_s`` + k·P): the ramp
+    [t₀, q₀ (n), q₁ (n)] (start time, start, target), the rejected flag (1), and
+    [rejected-command count, last rejected command (n)] (to count a held invalid command once).
 
     Poll at t_k, with u = q_commanded(t_k):
 

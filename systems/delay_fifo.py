@@ -4,11 +4,12 @@ The ground station samples the 100 Hz inverse-kinematics stream once per uplink 
 queues the samples for ``delay_s`` (L = delay_s / period_s samples, 3 by default) before they
 are sent, so that the pre-simulator, which shows the newest command, runs 0.75 s ahead of the
 robot. When the pre-simulator reports a collision the queue is refilled with the command
-already sent (docs/method.md §5.2, policy "hold"): everything queued that leads into the collision is
-discarded and the robot holds. The optional policy "stop" (issue 6 part 2) instead plays out a
+already sent (docs/method.md §5.2, policy "hold"): everything queued that leads into the collision
+is discarded and the robot holds. The optional policy "stop" (issue 6 part 2) instead plays out a
 jerk-limited stop planned from the sent motion (:mod:`telesmooth.systems.collision_stop`) and
-then holds at its rest pose. The FIFO is also the fixed-lag smoother's window (docs/method.md §5.1):
-the smoother consumes the same samples at the same ticks, so smoothing adds no delay.
+then holds at its rest pose. The FIFO is also the fixed-lag smoother's window
+(docs/method.md §5.1): the smoother consumes the same samples at the same ticks, so smoothing
+adds no delay.
 """
 
 from __future__ import annotations
@@ -44,10 +45,10 @@ class DelayFifoConfig:
         release: When a collision hold ends. ``"collision-clear"`` (default): at the first
             tick whose ``collision_detected`` input is false. ``"clutch"``: additionally the
             operator must have released the clutch (``enable`` = 0 at some tick during the
-            hold) and re-engaged it (haptic re-indexing, docs/method.md §5.2 follow-up); requires the
-            ``enable`` input.
-        on_collision: What a collision does. ``"hold"`` (default, docs/method.md §5.2): re-send the last
-            sent command at once (a velocity step). ``"stop"``: a jerk-limited stop from the
+            hold) and re-engaged it (haptic re-indexing, docs/method.md §5.2 follow-up); requires
+            the ``enable`` input.
+        on_collision: What a collision does. ``"hold"`` (default, docs/method.md §5.2): re-send the
+            last sent command at once (a velocity step). ``"stop"``: a jerk-limited stop from the
             sent motion to rest within the smoother's acceleration/jerk limits, checked pose
             by pose with the pre-simulator, then hold at the rest pose; where no such stop
             exists it falls back to the hold (see :mod:`telesmooth.systems.collision_stop`).
@@ -182,7 +183,8 @@ class DelayFifo(LeafSystem):
 
         h_k = collision_k  or  (h_{k−1} and not released_k)
         window_k = [b, s]            if not h_k
-                 = [q_s, …, q_s]     if h_k   (docs/method.md §5.2 hold: queue and newest discarded)
+                 = [q_s, …, q_s]     if h_k   (docs/method.md §5.2 hold: queue and newest
+                                                discarded)
         q_newest = window_k[L];  q_delayed = window_k[0];  b ← window_k[1:]
 
     With ``on_collision = "stop"``, at a collision tick that starts a hold (h_{k−1} = 0) the

@@ -1,7 +1,7 @@
 """Inverse kinematics of the ground station: the operator's pose command becomes joint targets.
 
-This is the "task plan manager" stage (docs/method.md §5.1): at the haptic rate (100 Hz) it turns the
-operator's Cartesian pose command into the newest joint target ``q_target``, which feeds the
+This is the "task plan manager" stage (docs/method.md §5.1): at the haptic rate (100 Hz) it turns
+the operator's Cartesian pose command into the newest joint target ``q_target``, which feeds the
 pre-simulator's collision checker and, through the 0.75 s delay FIFO and the smoother, the
 robot. It is the first place where a command can be unsafe, so it never passes one on: an
 unreachable, limit-violating, too-large-jump or non-finite command is not converted; the

@@ -94,7 +94,8 @@ def check_joint_command(msg, *, joint_names, lower_rad, upper_rad) -> str | None
     if msg.num_joints != n or len(msg.joint_position_smoothed) != n:
         return f"num_joints = {msg.num_joints} but the robot has {n} joints"
     if tuple(msg.joint_name) != tuple(joint_names):
-        return f"joint_name = {list(msg.joint_name)!r} differs from the robot's {list(joint_names)!r}"
+        return (f"joint_name = {list(msg.joint_name)!r} differs from the robot's "
+                f"{list(joint_names)!r}")
     for name, value, lo, hi in zip(joint_names, msg.joint_position_smoothed, lower_rad,
                                    upper_rad):
         if not np.isfinite(value):

@@ -122,7 +122,8 @@ class JointCommandSender(LeafSystem):
         if self._state_input.HasValue(context):
             velocity = self._state_input.Eval(context)[n:2 * n]
         msg.joint_velocity_smoothed = [float(v) for v in velocity]
-        holding = self._holding_input.HasValue(context) and self._holding_input.Eval(context)[0] > 0.5
+        holding = (self._holding_input.HasValue(context)
+                   and self._holding_input.Eval(context)[0] > 0.5)
         msg.mode = lcmt_teleop_joint_command.MODE_HOLD if holding else \
             lcmt_teleop_joint_command.MODE_TRACK
         msg.session_id = self._session_id

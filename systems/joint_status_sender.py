@@ -65,7 +65,8 @@ class JointStatusSender(LeafSystem):
         self._guard_mode_input = self.DeclareVectorInputPort("guard_mode", 1)
         self._stream_distance_input = self.DeclareVectorInputPort("stream_distance", 1)
         self._accepted_input = self.DeclareVectorInputPort("accepted_count", 1)
-        self._counts_input = self.DeclareVectorInputPort("rejection_counts", len(REJECTION_CLASSES))
+        self._counts_input = self.DeclareVectorInputPort("rejection_counts",
+                                                         len(REJECTION_CLASSES))
         self._message_output = self.DeclareAbstractOutputPort(
             "lcm_message", lambda: AbstractValue.Make(lcmt_onboard_joint_status()),
             self._calc_lcm_message)

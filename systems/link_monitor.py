@@ -111,11 +111,11 @@ class LinkMonitor(LeafSystem):
       3 resuming; −1 before telemetry), (1,).
     - ``onboard_counts``: the robot's packet counts (:data:`ONBOARD_COUNTS`), (7,).
     - ``onboard_epoch``: the epoch the robot announces (0 before telemetry), and
-      ``session_id``: the session this ground run's commands carry (:mod:`telesmooth.link.session`),
-      (1,) each: connect both to the ``JointCommandSender``. With a ``session_nonce`` the
-      session follows the telemetry: whenever a new epoch appears (the first telemetry, a
-      restarted robot) it becomes the counter after the robot's last accepted session, with
-      this run's nonce. Without one both stay at the constructor's values.
+      ``session_id``: the session this ground run's commands carry
+      (:mod:`telesmooth.link.session`), (1,) each: connect both to the ``JointCommandSender``. With
+      a ``session_nonce`` the session follows the telemetry: whenever a new epoch appears (the
+      first telemetry, a restarted robot) it becomes the counter after the robot's last accepted
+      session, with this run's nonce. Without one both stay at the constructor's values.
     - ``stream_distance``: how far the robot's command is from the stream it accepted, rad
       (the telemetry's; 0 before), (1,).
     - ``robot_session``: the session of the robot's last accepted command (0 before), (1,).

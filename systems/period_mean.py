@@ -1,7 +1,7 @@
 """Optional pre-filter of the FIFO: the mean of the last period's 100 Hz joint targets.
 
-docs/method.md §5.1, step 1, option: instead of the latest IK sample, the FIFO may take the average of
-the M samples of the last uplink period (M = 25 at 100 Hz / 4 Hz). If the hand noise is white
+docs/method.md §5.1, step 1, option: instead of the latest IK sample, the FIFO may take the average
+of the M samples of the last uplink period (M = 25 at 100 Hz / 4 Hz). If the hand noise is white
 this divides its variance by M (use r/M in the smoother); it adds about (M−1)/2 fast samples
 (0.12 s) of delay and attenuates, but does not remove, tremor above the 2 Hz Nyquist rate.
 """

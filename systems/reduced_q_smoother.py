@@ -4,8 +4,8 @@ Consumes the FIFO's newest sample z_k at every uplink tick and emits x̂_{k−L|
 estimate of the sample leaving the FIFO at that tick, so the smoothed command and the raw
 delayed command are the same instant of the operator's motion (docs/method.md §5.1: the FIFO is the
 smoother window; total added latency L·Δt). The numerics are the core's
-:class:`~telesmooth.smoothing.reduced_q.OnlineCks` (docs/method.md §3, §4); this system only keeps its
-state in the Context and wires ports.
+:class:`~telesmooth.smoothing.reduced_q.OnlineCks` (docs/method.md §3, §4); this system only keeps
+its state in the Context and wires ports.
 """
 
 from __future__ import annotations
@@ -193,7 +193,8 @@ class ReducedQSmoother(LeafSystem):
             )
         for name, value in zip(joint_names, q0):
             if not np.isfinite(value):
-                raise ValueError(f"initial_position_rad[{name!r}] = {float(value)!r} must be finite")
+                raise ValueError(
+                    f"initial_position_rad[{name!r}] = {float(value)!r} must be finite")
         initial = self._online.initial_state(q0, sigma0)
         lag = config.lag
         # online-hard: the limits (immutable) here, the limiter's state in the Context.

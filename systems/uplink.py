@@ -89,7 +89,8 @@ class Uplink(LeafSystem):
                 f"initial_position_rad = {initial_position_rad!r} must have {n} values")
         for joint, value in enumerate(q0):
             if not np.isfinite(value):
-                raise ValueError(f"initial_position_rad[{joint}] = {float(value)!r} must be finite")
+                raise ValueError(
+                    f"initial_position_rad[{joint}] = {float(value)!r} must be finite")
         self._config = config
         self._num_joints = n
         self._q_smoothed_input = self.DeclareVectorInputPort("q_smoothed", n)

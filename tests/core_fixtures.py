@@ -16,8 +16,8 @@ def operator_recording(num_samples=60, num_joints=2, dt=0.25, noise=1e-3, seed=0
 
 
 def dense_smoother_normal_equations(z, dt, sigma_schedule, r, prior_mean, prior_cov, dps=40):
-    """Independent oracle: the IPLM objective's normal equations C y = −d (docs/method.md §2.3) for one
-    joint, assembled densely and solved in 40-digit arithmetic (mpmath). Returns (N, 4).
+    """Independent oracle: the IPLM objective's normal equations C y = −d (docs/method.md §2.3) for
+    one joint, assembled densely and solved in 40-digit arithmetic (mpmath). Returns (N, 4).
 
     Double precision is not enough for a dense oracle here: cond(C) grows like r/(σΔt⁷), and
     numpy's dense solve loses ~1e-7 where the Kalman recursions stay at 1e-15. The unit-time

@@ -1,4 +1,5 @@
-"""Helpers of the property-based fuzzing (tests/test_fuzz_*.py) of every place a user or a device feeds input into telesmooth.
+"""Helpers of the property-based fuzzing (tests/test_fuzz_*.py) of every place a user or a device
+feeds input into telesmooth.
 
 Contract checked everywhere: a bad input gets a clear error (a ValueError whose message names
 the file and the line / column / field / value) or a held, flagged output; never an uncaught

@@ -93,7 +93,8 @@ def test_flexible_model_has_motor_and_spring_per_joint(arm):
         assert actuator.default_rotor_inertia() == pytest.approx(description.rotor_inertia_kg_m2)
         assert actuator.default_gear_ratio() == pytest.approx(description.gear_ratio)
         gains = actuator.get_controller_gains()
-        assert (gains.p, gains.d) == pytest.approx((description.motor_kp_n_m_per_rad, description.motor_kd_n_m_s_per_rad))
+        assert (gains.p, gains.d) == pytest.approx((description.motor_kp_n_m_per_rad,
+                                                    description.motor_kd_n_m_s_per_rad))
         assert actuator.effort_limit() == pytest.approx(description.max_effort_n_m)
         spring = springs[f"{description.name}_deflection"]
         assert spring.default_stiffness() == pytest.approx(description.stiffness_n_m_per_rad)
@@ -131,7 +132,7 @@ def _rod_inertia_by_quadrature(link: LinkDescription) -> np.ndarray:
 
 
 @pytest.mark.parametrize("link", SPACE_ARM_6DOF.links + (SPACE_ARM_6DOF.base,),
-                         ids=lambda l: l.name)
+                         ids=lambda link: link.name)
 def test_link_inertia_matches_quadrature(link):
     np.testing.assert_allclose(link.inertia_about_center(), _rod_inertia_by_quadrature(link),
                                rtol=2e-3, atol=1e-9 * link.mass_kg)
@@ -151,10 +152,12 @@ def test_plant_reads_back_our_inertia():
 
 def test_air_bearing_model_matches_the_planar_arm():
     assert AIR_BEARING_ARM_3DOF.joint_names == AIR_BEARING_ARM.joint_names
-    np.testing.assert_allclose([l.length_m for l in AIR_BEARING_ARM_3DOF.links],
+    np.testing.assert_allclose([link.length_m for link in AIR_BEARING_ARM_3DOF.links],
                                AIR_BEARING_ARM.link_lengths_m)
-    np.testing.assert_allclose(AIR_BEARING_ARM_3DOF.joint_lower_rad, AIR_BEARING_ARM.joint_lower_rad)
-    np.testing.assert_allclose(AIR_BEARING_ARM_3DOF.joint_upper_rad, AIR_BEARING_ARM.joint_upper_rad)
+    np.testing.assert_allclose(AIR_BEARING_ARM_3DOF.joint_lower_rad,
+                               AIR_BEARING_ARM.joint_lower_rad)
+    np.testing.assert_allclose(AIR_BEARING_ARM_3DOF.joint_upper_rad,
+                               AIR_BEARING_ARM.joint_upper_rad)
 
 
 @pytest.mark.parametrize("flexible", [False, True])

@@ -1,9 +1,10 @@
 """The banded interior point for Offline-CKS against independent solutions.
 
 Oracles: the RTS smoother (its problem without limits), the dense interior point with an
-active-set KKT certificate of tests/test_offline.py (written out independently from docs/method.md §2.3
-/§2.6), the Drake MathematicalProgram (Clarabel), and at Δt = 0.01 s, where no dense or
-generic solver is reliable (cond ≈ 1e17), the KKT conditions checked on the returned point.
+active-set KKT certificate of tests/test_offline.py (written out independently from
+docs/method.md §2.3/§2.6), the Drake MathematicalProgram (Clarabel), and at Δt = 0.01 s, where
+no dense or generic solver is reliable (cond ≈ 1e17), the KKT conditions checked on the returned
+point.
 """
 
 import numpy as np

@@ -234,7 +234,8 @@ def test_trajectory_constraint_output_has_no_fd_violations(tmp_path, capsys, inp
 
 
 def test_state_constraint_output_breaks_fd_limits(tmp_path, capsys, input_csv):
-    """The paper's state box is soft on the FD values (docs/method.md §2.4); trajectory mode is not."""
+    """The paper's state box is soft on the FD values (docs/method.md §2.4); trajectory mode is
+    not."""
     path, _, _ = input_csv
     out = tmp_path / "cks.csv"
     status, _, _ = run_cli(capsys, path, "-o", out, "--method", "offline-cks", *LIMITS)

@@ -102,7 +102,7 @@ def test_fd_figures_are_of_what_the_plant_receives(scenario, comparison):
 def test_residual_motion_and_table_rows(scenario, comparison):
     period = comparison.period_s
     operator_samples = comparison.q_original.shape[0] - round(scenario.settle_s / period)
-    for name, run in comparison.runs.items():
+    for run in comparison.runs.values():
         final = tool_positions(scenario, run.packets[-1][None, :])[0]
         # From the end of the hold of the packet carrying the last sample (zoh).
         after = run.tracker_t_s >= (operator_samples + run.delay_ticks) * period

@@ -17,7 +17,8 @@ def _schedule(num_samples, num_joints, seed=5):
 
 
 def _dense_superstate_filter(z, dt, schedule, r, lag, q0):
-    """Independent oracle: the literal superstate KF of docs/method.md §3.1 with explicit Φ_BM, Q_BM."""
+    """Independent oracle: the literal superstate KF of docs/method.md §3.1 with explicit
+    Φ_BM, Q_BM."""
     n, m = 4, 4 * (lag + 1)
     phi_bm = np.zeros((m, m))
     phi_bm[:n, :n] = transition_matrix(dt)
@@ -74,7 +75,8 @@ def test_output_at_k_minus_lag_equals_rts_on_data_so_far(lag):
         rts = rts_smoother(z[: k + 1], model, prior, sigma_schedule=schedule[: k + 1]).mean
         scale = np.abs(rts).max(axis=0)
         np.testing.assert_allclose(outputs[k] / scale, rts[k - lag] / scale, rtol=0, atol=1e-11)
-    # Before the FIFO has filled, the output is the rest pose (FIFO pre-filled, docs/method.md §3.1).
+    # Before the FIFO has filled, the output is the rest pose
+    # (FIFO pre-filled, docs/method.md §3.1).
     for k in range(lag):
         np.testing.assert_allclose(outputs[k, :, 0], z[0], rtol=0, atol=1e-15)
         np.testing.assert_allclose(outputs[k, :, 1:], 0.0, rtol=0, atol=1e-15)

@@ -1,4 +1,5 @@
-"""Property-based fuzzing of the haptic recording readers (``read_haptic_csv``, ``read_haptic_npz``).
+"""Property-based fuzzing of the haptic recording readers (``read_haptic_csv``,
+``read_haptic_npz``).
 
 The contract, the conventions and the shared generators: tests/fuzz_helpers.py (a bad
 input gets a clear ValueError or a held, flagged output; never another exception; what was

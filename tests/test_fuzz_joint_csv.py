@@ -1,5 +1,5 @@
-"""Property-based fuzzing of the joint trajectory CSV reader of ``telesmooth smooth`` (``read_joint_csv``,
-``read_csv_table``, ``parse_csv_number``).
+"""Property-based fuzzing of the joint trajectory CSV reader of ``telesmooth smooth``
+(``read_joint_csv``, ``read_csv_table``, ``parse_csv_number``).
 
 The contract, the conventions and the shared generators: tests/fuzz_helpers.py (a bad
 input gets a clear ValueError or a held, flagged output; never another exception; what was

@@ -1,5 +1,5 @@
-"""Property-based fuzzing of the live path: bytes on the LCM channel → subscriber → receiver, in the
-process diagrams.
+"""Property-based fuzzing of the live path: bytes on the LCM channel → subscriber → receiver, in
+the process diagrams.
 
 The contract, the conventions and the shared generators: tests/fuzz_helpers.py (a bad
 input gets a clear ValueError or a held, flagged output; never another exception; what was

@@ -564,7 +564,7 @@ def test_random_lossy_streams_stay_within_the_limits_and_track(case):
     out = run_guard(make_guard(q0), polls, z, (polls[-1] + 60 * PERIOD_POLLS) * POLL, q0=q0)
     # Every packet accepted while in TRACK is followed at once (no seq: every single new
     # packet counts as consecutive).
-    for poll, q in zip(polls, z):
+    for poll, _q in zip(polls, z):
         if out.mode_before[poll] == MODE_TRACK:
             assert out.issued[poll]
     for segment in out.segments():
@@ -629,7 +629,7 @@ def test_random_gaps_below_the_timeout_stay_within_the_limits(case):
     out = run_guard(make_guard(q0, config=LinkGuardConfig(timeout_s=3.0)), polls, z[keep],
                     (polls[-1] + 60 * PERIOD_POLLS) * POLL, q0=q0, seqs=seqs)
     # Consecutive packets accepted in TRACK are commanded at once.
-    for j, (poll, q) in enumerate(zip(polls, z[keep])):
+    for j, (poll, _q) in enumerate(zip(polls, z[keep])):
         if j and seqs[j] == seqs[j - 1] + 1 and out.mode_before[poll] == MODE_TRACK:
             assert out.issued[poll]
     assert out.fallbacks().size == 0

@@ -1,4 +1,5 @@
-"""Oracle tests of the jerk model (docs/method.md §1): Φ, exact Q, scaling identities, validation."""
+"""Oracle tests of the jerk model (docs/method.md §1): Φ, exact Q, scaling identities,
+validation."""
 
 from fractions import Fraction
 from math import factorial

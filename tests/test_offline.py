@@ -21,8 +21,8 @@ def _recording(num_samples=40, num_joints=2, seed=21):
 
 
 def _dense_qp(z, model, joint, *, constraint, acc, jerk, vel=None, rest_at_end=False):
-    """The same QP written out densely and independently (docs/method.md §2.3/§2.6), scaled variables
-    y_k = T x_k stacked as [y_0, …, y_{N−1}], objective multiplied by r."""
+    """The same QP written out densely and independently (docs/method.md §2.3/§2.6), scaled
+    variables y_k = T x_k stacked as [y_0, …, y_{N−1}], objective multiplied by r."""
     n = len(z)
     dt, r, sigma = model.dt_s, model.r[joint], model.sigma[joint]
     t = dt ** np.arange(4.0)
@@ -85,7 +85,8 @@ def _dense_qp(z, model, joint, *, constraint, acc, jerk, vel=None, rest_at_end=F
             a_eq[index, 4 * (n - 1) + 1 + index] = 1.0
         b_eq = np.zeros(3)
     # The dual residual of a dense double-precision IP stalls near 1e-10 relative here (the
-    # Hessian spans ~1e7), as docs/method.md §2.3 notes for the ckbs port; 1e-9 is the honest target.
+    # Hessian spans ~1e7), as docs/method.md §2.3 notes for the ckbs port; 1e-9 is the
+    # honest target.
     a_in, b_in = np.array(rows), np.array(bounds)
     result = solve_dense_qp(hessian, gradient, a_in, b_in, a_eq, b_eq, tol=1e-9)
     x = _polish_active_set(hessian, gradient, a_in, b_in, a_eq, b_eq, result)
@@ -113,7 +114,8 @@ def _polish_active_set(hessian, gradient, a_in, b_in, a_eq, b_eq, result, max_ch
         m = rows.shape[0]
         kkt = np.block([[hessian, rows.T], [rows, np.zeros((m, m))]])
         solution = np.linalg.lstsq(kkt, np.concatenate([-gradient, rhs]), rcond=1e-14)[0]
-        x, multipliers = solution[: len(gradient)], solution[len(gradient):m + len(gradient) - num_eq]
+        x = solution[: len(gradient)]
+        multipliers = solution[len(gradient):m + len(gradient) - num_eq]
         violation = a_in @ x - b_in
         if violation.max() > 1e-12 * scale:
             working.append(int(np.argmax(violation)))
@@ -222,7 +224,8 @@ def test_per_joint_limits_and_validation():
     model = JerkModel.make(DT, SIGMA, R, num_joints=2, joint_names=("shoulder", "elbow"))
     with pytest.raises(ValueError, match="constraint = 'soft' must be one of"):
         solve_offline_cks(z, model, constraint="soft")
-    with pytest.raises(ValueError, match=r"max_jerk_rad_per_s3\[1\] = -0.1 for joint 1 \('elbow'\)"):
+    with pytest.raises(ValueError,
+                       match=r"max_jerk_rad_per_s3\[1\] = -0.1 for joint 1 \('elbow'\)"):
         solve_offline_cks(z, model, max_acceleration=ACC, max_jerk=[0.1, -0.1],
                           joint_names=("shoulder", "elbow"))
     with pytest.raises(ValueError, match=r"measurements\[4, 0\] = nan"):

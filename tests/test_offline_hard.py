@@ -32,7 +32,7 @@ def _dense_offline_hard(z, start, acc, jerk, vel=np.inf):
     for j in range(num_joints):
         length = 3 + num_samples + 3
 
-        def entry(e):                      # (coefficient row, constant) of extended entry e
+        def entry(e, j=j):                 # (coefficient row, constant) of extended entry e
             row = np.zeros(num_samples)
             if e < 3:
                 return row, start[j]

@@ -415,7 +415,8 @@ def test_large_hulls_by_qhull_equal_the_monotone_chain():
     finally:
         limiter._LARGE_HULL = original
     assert {tuple(p) for p in fast} == {tuple(p) for p in slow}
-    area = 0.5 * np.sum(fast[:, 0] * np.roll(fast[:, 1], -1) - np.roll(fast[:, 0], -1) * fast[:, 1])
+    area = 0.5 * np.sum(fast[:, 0] * np.roll(fast[:, 1], -1)
+                        - np.roll(fast[:, 0], -1) * fast[:, 1])
     assert area > 0                                                  # counter-clockwise
 
 

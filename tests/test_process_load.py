@@ -118,6 +118,7 @@ def test_the_guard_tracks_on_95_percent_of_its_ticks_with_a_cpu_bound_process_be
     counted = window & ~excused
     share = float(np.mean(mode[counted] == MODE_TRACK))
     report = json.loads((out / "onboard_report.json").read_text())
+    arrivals = loaded_run["arrivals"]
     print(f"\nREADME run beside a CPU-bound process: {int(np.sum(counted))} guard ticks "
           f"counted ({int(np.sum(window & excused))} set aside after {len(gaps)} gap(s) longer "
           f"than the {timeout_s} s timeout), TRACK on {100 * share:.1f} %; report: "
@@ -128,7 +129,7 @@ def test_the_guard_tracks_on_95_percent_of_its_ticks_with_a_cpu_bound_process_be
           f"seen by the guard max {sim_gaps.max():.3f} s ({int(np.sum(sim_gaps > 0.3))} over "
           f"0.3 s), on the bus max {wall_gaps.max():.3f} s ({int(np.sum(wall_gaps > 0.3))} "
           f"over 0.3 s); onboard real-time factor over the run "
-          f"{(last - first) / max(loaded_run['arrivals'][-1] - loaded_run['arrivals'][0], 1e-9):.2f}")
+          f"{(last - first) / max(arrivals[-1] - arrivals[0], 1e-9):.2f}")
     # A loaded onboard process runs behind the wall clock (its packets then come closer
     # together in its own time, fewer guard ticks): judged on the ticks it had.
     assert np.sum(counted) >= 10, "too few guard ticks to judge"

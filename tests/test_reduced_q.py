@@ -239,7 +239,8 @@ GENTLE_REACHES = ((0.3, 6.0), (-0.5, 8.0), (0.4, 5.0), (0.2, 10.0), (-0.35, 7.0)
 
 def two_operations(trigger, seed=0, reaches=C8_REACHES):
     """The same recorded motion twice, the second starting from the σ the first reached
-    (docs/method.md §4 settings: r = 1e-6, σ_0 = 4e-4, ρ = 0.8, σ_min = 1e-7, limits 0.05 / 0.1)."""
+    (docs/method.md §4 settings: r = 1e-6, σ_0 = 4e-4, ρ = 0.8, σ_min = 1e-7,
+    limits 0.05 / 0.1)."""
     z = recorded_motion(seed, reaches=reaches)
     config = ReducedQConfig(variant="A", step_rule="multiplicative", rho=0.8, sigma_min=1e-7,
                             trigger=trigger)
