@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 OUT    ?= out/demo
 
-.PHONY: demo methods test bench venv clean
+.PHONY: demo methods test lint bench venv clean
 
 venv: $(VENV)/.installed
 
@@ -25,6 +25,10 @@ methods: venv
 
 test: venv
 	$(BIN)/python -m pytest -q
+
+# Static checks ([tool.ruff] in pyproject.toml); CI runs them before the tests.
+lint: venv
+	$(BIN)/ruff check .
 
 bench: venv
 	$(BIN)/telesmooth bench --out out/bench
