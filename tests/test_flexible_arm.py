@@ -180,7 +180,8 @@ def test_ports_and_plant_structure_air_bearing():
              != "query_object"}
     assert sizes == {"position_measured": 3, "q_link": 3, "q_motor": 3,
                      "tracker_sample_time": 1, "tracker_measurement": 10,
-                     "command_rejected": 1, "state_desired": 6, "plant_state": 12}
+                     "command_rejected": 1, "state_desired": 6, "command_ramp": 7,
+                     "plant_state": 12}
     plant = dut.plant
     assert plant.time_step() == 0.0   # continuous by default
     assert plant.num_positions() == 6 and plant.num_actuators() == 3

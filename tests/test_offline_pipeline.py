@@ -259,7 +259,7 @@ def test_run_offline_returns_the_plan_and_copied_logs(scenario, plan):
     dut, logs = run_offline(scenario)
     np.testing.assert_array_equal(dut.q_planned, plan.q_planned)
     assert set(logs) == {"sequence_number", "send_time", "q_sent", "state_sent", "tracker",
-                         "command_rejected"}
+                         "command_rejected", "command_ramp"}
     assert logs["q_sent"].values.shape[1] == 3
     np.testing.assert_array_equal(logs["q_sent"].values[-1], plan.q_planned[-1])
     assert np.abs(logs["tracker"].q_link[-1] - plan.q_planned[-1]).max() < 0.01

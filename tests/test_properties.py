@@ -209,3 +209,22 @@ def test_offline_ks_solves_the_same_small_steps():
         result = smooth_recording(step_recording(), dt, "offline-ks", SmoothingSettings())
         assert np.all(np.isfinite(result.positions))
         assert np.abs(result.positions).max() < 2e-3
+
+
+def test_a_clarabel_answer_that_breaks_the_limits_is_not_returned():
+    """Found by the 100 Hz property (it passed or failed with the process's earlier BLAS
+    use): j_max Δt³ ≈ 1.3e-9 rad on the second joint, where Clarabel reports a solution that
+    is still 9 % over the jerk limit after its back-offs. Such an answer is not a solution:
+    the joint is solved by the banded interior point instead, within the limits."""
+    z = np.array([
+        [0.12573022, 0.03455842], [-0.00637464, 0.11672023], [0.63404801, 0.14976394],
+        [0.73894813, 0.01944822], [0.20327875, 0.1099838], [0.56487381, 0.15462126],
+        [1.86887385, 0.10092594], [2.81595482, 0.15903775], [2.11221958, 0.19549499],
+        [0.84679811, 0.22490824], [0.22352365, 0.22775046], [0.26484963, 0.28242176],
+        [-2.06018115, 0.20877635], [-2.27897281, 0.19248536], [-3.52488376, 0.14427343],
+        [-4.25715112, 0.20415805], [-4.8014101, 0.20813026], [-5.11771025, 0.17888458],
+        [-4.70607972, 0.10069374], [-3.66356635, 0.07497451], [-3.79210101, 0.07578873],
+        [-2.42563754, 0.04822844], [-3.09083221, 0.17763482], [-2.73932214, 0.27830725]])
+    case = (0.01, z, np.array([1.0, 1.0]), np.array([1.0, 0.00133352]), None)
+    check_trajectory_mode(case, True)
+    check_trajectory_mode(case, False)
