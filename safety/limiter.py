@@ -829,10 +829,15 @@ def _stop_scalar(position, velocity, acceleration, a_max, j_max):
     sign = 1.0 if velocity + acceleration * abs(acceleration) / (2.0 * j_max) >= 0.0 else -1.0
     v = sign * velocity
     a = sign * acceleration
-    peak_sq = _max(j_max * v + 0.5 * a * a, 0.0)
-    peak = _min(math.sqrt(peak_sq), a_max)
-    t1 = _max((a + peak) / j_max, 0.0)
-    t2 = _max((peak_sq - peak * peak) / (j_max * a_max), 0.0)
+    # _max / _min written out (the hot path of a tick).
+    x = j_max * v + 0.5 * a * a
+    peak_sq = x if x > 0.0 or x != x else 0.0
+    x = math.sqrt(peak_sq)
+    peak = x if x < a_max or x != x else a_max
+    x = (a + peak) / j_max
+    t1 = x if x > 0.0 or x != x else 0.0
+    x = (peak_sq - peak * peak) / (j_max * a_max)
+    t2 = x if x > 0.0 or x != x else 0.0
     t3 = peak / j_max
     jt1 = j_max * t1
     d1 = t1 * (v + t1 * (0.5 * a - jt1 / 6.0))
@@ -841,21 +846,22 @@ def _stop_scalar(position, velocity, acceleration, a_max, j_max):
     return position + sign * (d1 + d23)
 
 
-def _stop_grid(position, velocity, acceleration, a_max, j_max):
-    """:func:`stop_position` on (k, G) arrays with (k, 1) limits, the same operations in the
-    same order but mostly in place; overwrites ``velocity`` and ``acceleration``."""
+def _stop_grid(position, velocity, acceleration, a_max, j_max, two_j_max, j_a_max):
+    """:func:`stop_position` on (k, G) arrays, the same operations in the same order but
+    mostly in place; the limits come as (k, G) arrays too, with 2·j_max and j_max·a_max
+    (the same products, formed per joint); overwrites ``velocity`` and ``acceleration``."""
     s = np.abs(acceleration)
     s *= acceleration
-    s /= 2.0 * j_max
+    s /= two_j_max
     s += velocity
     sign = np.where(s >= 0.0, 1.0, -1.0)
     v = velocity
     v *= sign
     a = acceleration
     a *= sign
+    half_a = 0.5 * a
     peak_sq = j_max * v
-    s = 0.5 * a
-    s *= a
+    s = half_a * a
     peak_sq += s
     np.maximum(peak_sq, 0.0, out=peak_sq)
     peak = np.sqrt(peak_sq)
@@ -865,13 +871,13 @@ def _stop_grid(position, velocity, acceleration, a_max, j_max):
     np.maximum(t1, 0.0, out=t1)
     t2 = peak * peak
     np.subtract(peak_sq, t2, out=t2)
-    t2 /= j_max * a_max
+    t2 /= j_a_max
     np.maximum(t2, 0.0, out=t2)
     t3 = peak / j_max
     jt1 = j_max * t1
     # d1 = t1 (v + t1 (a/2 − j t1/6))
     d1 = jt1 / 6.0
-    np.subtract(0.5 * a, d1, out=d1)
+    np.subtract(half_a, d1, out=d1)
     d1 *= t1
     d1 += v
     d1 *= t1
@@ -898,31 +904,37 @@ def _stop_grid(position, velocity, acceleration, a_max, j_max):
     return d1
 
 
-def _crossings(dt, position, velocity, acceleration, lo, hi, wall_lo, wall_hi, a_lim, j_lim):
-    """The second part of :func:`_band` for the joints (rows of these (k,) arrays) whose stop
-    point misses the band: (u_lower, u_upper) per row. The grid and its stop points are the
-    same for both walls of a joint, so they are evaluated once (the same floats)."""
-    grid = lo[:, None] + (hi - lo)[:, None] * _GRID
+def _crossings(dt, rows):
+    """The second part of :func:`_band` for the joints whose stop point misses the band,
+    given per joint as (p, v, a, lo, hi, wall_lo, wall_hi, a_max, j_max) floats: the lists
+    (u_lower, u_upper). The grid and its stop points are the same for both walls of a joint,
+    so they are evaluated once (the same floats)."""
+    columns = np.repeat(np.array([
+        (lo, hi - lo, acc, vel, p, a_lim, j_lim, 2.0 * j_lim, j_lim * a_lim, wall_lo, wall_hi)
+        for p, vel, acc, lo, hi, wall_lo, wall_hi, a_lim, j_lim in rows]).T[:, :, None],
+        _GRID_POINTS, axis=2)
+    low, width, acc0, vel0, pos0, a_max, j_max, two_j, j_a, walls = (
+        columns[0], columns[1], columns[2], columns[3], columns[4], columns[5], columns[6],
+        columns[7], columns[8], columns[9:])
+    grid = width * _GRID
+    grid += low                     # = lo + (hi − lo)·grid, as in _band
     acc = grid * dt
-    acc += acceleration[:, None]
+    acc += acc0
     vel = acc * dt
-    vel += velocity[:, None]
+    vel += vel0
     pos = vel * dt
-    pos += position[:, None]
-    stops = _stop_grid(pos, vel, acc, a_lim[:, None], j_lim[:, None])
+    pos += pos0
+    stops = _stop_grid(pos, vel, acc, a_max, j_max, two_j, j_a)
     # Per row and wall: values = stops − wall; values ≤ 0 ⇔ stops ≤ wall for finite floats
     # (a difference of finite floats is 0 only for equal ones), so the bracket index is
     # counted on the stops; the rest is scalar arithmetic on the bracket's two points.
-    walls = np.stack([wall_lo, wall_hi])
-    counts = (stops[None, :, :] <= walls[:, :, None]).sum(axis=2).tolist()
+    counts = (stops <= walls).sum(axis=2).tolist()
     stops = stops.tolist()
-    lo, hi = lo.tolist(), hi.tolist()
     lower, upper = [], []
-    for row, (left, right) in enumerate(zip(lo, hi)):
+    for row, (_, _, _, left, right, wall_lo, wall_hi, _, _) in enumerate(rows):
         ends = []
         row_stops = stops[row]
-        for wall, count in zip((wall_lo[row], wall_hi[row]), (counts[0][row], counts[1][row])):
-            wall = float(wall)
+        for wall, count in zip((wall_lo, wall_hi), (counts[0][row], counts[1][row])):
             if row_stops[-1] - wall <= 0.0:          # all below
                 ends.append(right)
                 continue
@@ -1023,13 +1035,10 @@ def _step_scalar(params: LimiterParams, state: LimiterState, r: np.ndarray, futu
         hit_out.append(u_hit)
     lower_band, upper_band = lo_out, hi_out
     if outside:
-        def pick(values):
-            return np.array([values[joint] for joint in outside])
-
-        lower, upper = _crossings(
-            dt, pick(p_out), pick(v_out), pick(a_out), pick(lo_out), pick(hi_out),
-            pick(wlo_out), pick(whi_out), pick([row[3] for row in rows]),
-            pick([row[4] for row in rows]))
+        lower, upper = _crossings(dt, [
+            (p_out[joint], v_out[joint], a_out[joint], lo_out[joint], hi_out[joint],
+             wlo_out[joint], whi_out[joint], rows[joint][3], rows[joint][4])
+            for joint in outside])
         lower_band, upper_band = list(lo_out), list(hi_out)
         for joint, low, high in zip(outside, lower, upper):
             lower_band[joint], upper_band[joint] = low, high
