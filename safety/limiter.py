@@ -985,7 +985,8 @@ def _step_scalar(params: LimiterParams, state: LimiterState, r: np.ndarray, futu
         # _projected
         gauge = -math.inf
         for gv, ga in gauge_rows:
-            gauge = _max(gv * vel + ga * acc, gauge)
+            x = gv * vel + ga * acc
+            gauge = x if x > gauge or x != x else gauge
         if gauge > 1.0:
             scale = 1.0 / gauge
             vel, acc = vel * scale, acc * scale
@@ -993,20 +994,22 @@ def _step_scalar(params: LimiterParams, state: LimiterState, r: np.ndarray, futu
         moved = vel + acc * dt
         hi = math.inf
         for gv, ga, inverse in upper_rows:
-            hi = _min((1.0 - (gv * moved + ga * acc)) * inverse, hi)
-        hi = _min(hi, j_lim)
+            x = (1.0 - (gv * moved + ga * acc)) * inverse
+            hi = x if x < hi or x != x else hi
+        hi = hi if hi < j_lim or hi != hi else j_lim
         lo = -math.inf
         for gv, ga, inverse in lower_rows:
-            lo = _max((1.0 - (gv * moved + ga * acc)) * inverse, lo)
-        lo = _max(lo, -j_lim)
+            x = (1.0 - (gv * moved + ga * acc)) * inverse
+            lo = x if x > lo or x != x else lo
+        lo = lo if lo > -j_lim or lo != lo else -j_lim
         target = targets[joint]
         u_hit = ((target - p) / dt - vel - acc * dt) / dt2
         if braking:
             r1, r2 = previous[joint], older[joint]
             target_stop = _stop_scalar(target, (target - r1) / dt,
                                        (target - 2.0 * r1 + r2) / dt2, a_lim, j_lim)
-            wall_hi = _max(target, target_stop)
-            wall_lo = _min(target, target_stop)
+            wall_hi = target if target > target_stop else target_stop   # target is finite
+            wall_lo = target if target < target_stop else target_stop
             if ahead is not None:
                 column = ahead[joint]
                 if all(map(math.isfinite, column)):
@@ -1017,12 +1020,15 @@ def _step_scalar(params: LimiterParams, state: LimiterState, r: np.ndarray, futu
                     wall_hi = _max(wall_hi, _max(max(seq[2:]), end_stop))
                     wall_lo = _min(wall_lo, _min(min(seq[2:]), end_stop))
             # _band, its first part: the stop point after clip(u_hit, lo, hi).
-            hit = _min(_max(u_hit, lo), hi)
+            x = u_hit if u_hit > lo or u_hit != u_hit else lo
+            hit = x if x < hi or x != x else hi
             acc_next = acc + hit * dt
             vel_next = vel + acc_next * dt
             f_hit = _stop_scalar(p + vel_next * dt, vel_next, acc_next, a_lim, j_lim)
-            tolerance_lo = _max(abs(wall_lo), 1.0) * _BAND_TOLERANCE
-            tolerance_hi = _max(abs(wall_hi), 1.0) * _BAND_TOLERANCE
+            x = abs(wall_lo)
+            tolerance_lo = (x if x > 1.0 or x != x else 1.0) * _BAND_TOLERANCE
+            x = abs(wall_hi)
+            tolerance_hi = (x if x > 1.0 or x != x else 1.0) * _BAND_TOLERANCE
             if not (f_hit - wall_lo >= -tolerance_lo and f_hit - wall_hi <= tolerance_hi):
                 outside.append(joint)
             wlo_out.append(wall_lo)
@@ -1046,8 +1052,12 @@ def _step_scalar(params: LimiterParams, state: LimiterState, r: np.ndarray, futu
     all_exact = True
     for joint in range(n):
         lo, hi, u_hit = lo_out[joint], hi_out[joint], hit_out[joint]
-        u = _min(_max(u_hit, lower_band[joint]), upper_band[joint])
-        u = _min(_max(u, lo), hi)
+        bound = lower_band[joint]
+        u = u_hit if u_hit > bound or u_hit != u_hit else bound
+        bound = upper_band[joint]
+        u = u if u < bound or u != u else bound
+        u = u if u > lo or u != u else lo
+        u = u if u < hi or u != u else hi
         if lo > hi:
             u = 0.5 * (lo + hi)
         acc = a_out[joint] + u * dt
