@@ -1076,9 +1076,12 @@ def _step_scalar(params: LimiterParams, state: LimiterState, r: np.ndarray, futu
     sent = np.empty(state.sent.shape)
     sent[:-1] = state.sent[1:]
     sent[-1] = command
-    history = np.empty((2, n))
-    history[0] = state.targets[1]
-    history[1] = r
+    if braking:
+        history = np.array([previous, targets])
+    else:
+        history = np.empty((2, n))
+        history[0] = state.targets[1]
+        history[1] = r
     new_state = LimiterState(
         position=command, velocity=np.array(new_v), acceleration=np.array(new_a), sent=sent,
         targets=history, held=np.zeros(n, dtype=bool), ticks=state.ticks + 1,
