@@ -58,6 +58,7 @@ from telesmooth.smoothing.model import JerkModel
 from telesmooth.smoothing.offline import (
     HISTORY_LENGTH,
     OFFLINE_CONSTRAINTS,
+    OfflineCksResult,
     solve_offline_cks,
     with_rest_history,
 )
@@ -71,7 +72,6 @@ __all__ = [
     "MakeOfflinePlaybackDiagram",
     "OfflinePlan",
     "OfflinePlaybackHandles",
-    "OfflineSolveSummary",
     "PlannedPathSource",
     "SignalLog",
     "ValidationReport",
@@ -172,27 +172,6 @@ class ValidationReport:
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class OfflineSolveSummary:
-    """What the Offline-CKS solve reported (the program itself never leaves the solver).
-
-    Attributes mirror :class:`~telesmooth.smoothing.offline.OfflineCksResult` (per-joint
-    arrays have shape (J,)), plus the options the plan was solved with.
-    """
-
-    is_success: bool
-    solution_results: tuple
-    solver_name: str
-    objective: np.ndarray
-    solve_time_s: np.ndarray
-    build_time_s: np.ndarray
-    tolerance_reached: np.ndarray
-    infeasible_constraints: tuple
-    constraint: str
-    rest_at_end: bool
-    max_velocity_rad_per_s: np.ndarray | None
-
-
-@dataclasses.dataclass(frozen=True, eq=False)
 class OfflinePlan:
     """A smoothed, validated plan of a recorded session, sampled at the uplink period.
 
@@ -207,7 +186,12 @@ class OfflinePlan:
         q_planned: The smoothed positions to send, rad, (N, J); NaN if the solve failed.
         states_planned: The smoothed states [q, q̇, q̈, q⃛] per joint, (N, J, 4).
         ik_failures: Haptic samples at which the IK rejected the command and held, count.
-        solver: The solve summary.
+        solver: What the Offline-CKS solve returned
+            (:class:`~telesmooth.smoothing.offline.OfflineCksResult`: success, results, solver,
+            objective, times, tolerances; its ``states`` are ``states_planned``).
+        constraint: The solve's constraint mode (``"state"`` or ``"trajectory"``); always with
+            the rest at the end.
+        max_velocity_rad_per_s: The velocity limit per joint of the solve, rad/s (J,) or None.
         validation: The check of every sample of ``q_planned``.
         timings_s: Wall-clock time of each planning stage, s ("inverse_kinematics", "solve",
             "validation", "total").
@@ -222,7 +206,9 @@ class OfflinePlan:
     q_planned: np.ndarray
     states_planned: np.ndarray
     ik_failures: int
-    solver: OfflineSolveSummary
+    solver: OfflineCksResult
+    constraint: str
+    max_velocity_rad_per_s: np.ndarray | None
     validation: ValidationReport
     timings_s: dict
 
@@ -385,13 +371,6 @@ def plan_offline(scenario: Scenario, *, constraint: str = "trajectory", max_velo
         max_jerk=smoother.max_jerk_rad_per_s3, max_velocity=velocity, constraint=constraint,
         rest_at_end=True, start_position=q_start, joint_names=names,
         prior=start_prior(smoother.start_prior, q_start, model))
-    summary = OfflineSolveSummary(
-        is_success=bool(result.is_success), solution_results=result.solution_results,
-        solver_name=result.solver_name, objective=result.objective,
-        solve_time_s=result.solve_time_s, build_time_s=result.build_time_s,
-        tolerance_reached=result.tolerance_reached,
-        infeasible_constraints=result.infeasible_constraints, constraint=constraint,
-        rest_at_end=True, max_velocity_rad_per_s=velocity)
     after_solve = time.perf_counter()
 
     # Stage 3: the pre-simulator's check of every planned sample.
@@ -408,7 +387,8 @@ def plan_offline(scenario: Scenario, *, constraint: str = "trajectory", max_velo
     return OfflinePlan(
         scenario=scenario, joint_names=names, period_s=scenario.uplink.period_s, t_s=t_s,
         q_start=q_start, q_raw=z, q_planned=q_planned, states_planned=result.states,
-        ik_failures=ik_failures, solver=summary, validation=report,
+        ik_failures=ik_failures, solver=result, constraint=constraint,
+        max_velocity_rad_per_s=velocity, validation=report,
         timings_s={"inverse_kinematics": after_ik - start, "solve": after_solve - after_ik,
                    "validation": end - after_solve, "total": end - start})
 
@@ -641,7 +621,7 @@ def MakeOfflinePlaybackDiagram(scenario: Scenario, plan: OfflinePlan) -> Offline
     recheck = None if scenario is plan.scenario else _validate(
         plan.q_planned, plan.t_s, scenario, start_position=plan.q_start,
         check_fd_limits=plan.validation.fd_limits_enforced,
-        max_velocity=plan.solver.max_velocity_rad_per_s)
+        max_velocity=plan.max_velocity_rad_per_s)
     if recheck is not None and recheck.violations:
         raise ValueError("refusing to play back an offline plan that fails the check against "
                          "this scenario: " + _describe_violations(recheck.violations))

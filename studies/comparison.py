@@ -163,27 +163,29 @@ class Comparison:
     """Every method's run on one scenario.
 
     Attributes:
-        scenario: The scenario.
-        joint_names: Joint order, (J,).
-        period_s: Δt, s.
-        t_s: Operator sample times t_i, s, (N,).
-        q_original: z_i, the operator's samples, rad, (N, J).
-        q_start: The robot's start pose, rad, (J,).
-        duration_s: Simulated time of every run, s.
-        max_acceleration, max_jerk: a_max, j_max per joint (scenario.smoother), (J,).
+        setup: What every method ran on (:class:`ComparisonSetup`); its scenario, joint
+            names, period, sample times, operator samples, start pose, duration and limits
+            are also read directly (``comparison.t_s`` …).
         runs: method name → :class:`MethodRun`, in the requested order.
     """
 
-    scenario: Scenario
-    joint_names: tuple
-    period_s: float
-    t_s: np.ndarray
-    q_original: np.ndarray
-    q_start: np.ndarray
-    duration_s: float
-    max_acceleration: np.ndarray
-    max_jerk: np.ndarray
+    setup: ComparisonSetup
     runs: dict
+
+    scenario = property(lambda self: self.setup.scenario, doc="The scenario.")
+    joint_names = property(lambda self: self.setup.joint_names, doc="Joint order, (J,).")
+    period_s = property(lambda self: self.setup.period_s, doc="Δt, s.")
+    t_s = property(lambda self: self.setup.t_s, doc="Operator sample times t_i, s, (N,).")
+    q_original = property(lambda self: self.setup.q_original,
+                          doc="z_i, the operator's samples, rad, (N, J).")
+    q_start = property(lambda self: self.setup.q_start,
+                       doc="The robot's start pose, rad, (J,).")
+    duration_s = property(lambda self: self.setup.duration_s,
+                          doc="Simulated time of every run, s.")
+    max_acceleration = property(lambda self: self.setup.max_acceleration,
+                                doc="a_max per joint (scenario.smoother), (J,).")
+    max_jerk = property(lambda self: self.setup.max_jerk,
+                        doc="j_max per joint (scenario.smoother), (J,).")
 
     def plant(self) -> dict:
         """The plant every method ran on, with its vibration modes (:func:`plant_summary`)."""
@@ -572,8 +574,4 @@ def compare_methods(scenario: Scenario, methods=METHODS, *,
         say(f"[{number}/{len(methods)}] {method}: smoothed in {run.timings_s['smooth']:.2f} s, "
             f"{setup.duration_s:.1f} s simulated in {run.timings_s['simulate']:.1f} s; "
             f"P = {run.metrics['improvement_ratio_percent']:.1f} %")
-    return Comparison(scenario=scenario, joint_names=setup.joint_names,
-                      period_s=setup.period_s, t_s=setup.t_s, q_original=setup.q_original,
-                      q_start=setup.q_start, duration_s=setup.duration_s,
-                      max_acceleration=setup.max_acceleration, max_jerk=setup.max_jerk,
-                      runs=runs)
+    return Comparison(setup=setup, runs=runs)
