@@ -13,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from oracles import solve_dense_qp
 
+from telesmooth.smoothing.banded_ip import BandedIpOptions
 from telesmooth.smoothing.foresight import best_continuation
 from telesmooth.smoothing.methods import SmoothingSettings, smooth_recording
 from telesmooth.smoothing.metrics import finite_differences
@@ -100,7 +101,7 @@ def test_samples_within_the_limits_are_sent_unchanged():
     np.testing.assert_array_equal(result.positions, z)
 
 
-@settings(max_examples=12, deadline=None)
+@settings(max_examples=12, deadline=None, derandomize=True, database=None)
 @given(seed=st.integers(0, 10_000), shrink=st.floats(0.0, 0.99))
 def test_no_sequence_within_the_limits_is_closer_to_the_operator(seed, shrink):
     """online-hard's commands keep the limits from the rest pose on (it guarantees it) but
@@ -119,6 +120,18 @@ def test_no_sequence_within_the_limits_is_closer_to_the_operator(seed, shrink):
     assert np.all(result.squared_error >= free_end.squared_error - 1e-12)
     blend = z[0] + shrink * (result.positions - z[0])
     assert np.all(np.sum((blend - z) ** 2, axis=0) >= result.squared_error - 1e-12)
+
+
+def test_a_problem_that_needs_85_newton_steps_converges():
+    """Found by the property above (seed 1638) on a fresh clone: the free-end problem of the
+    first joint needs 85 Newton steps, and the former cap of 80 reported it as failed."""
+    z = operator_recording(num_samples=40, num_joints=2, seed=1638, noise=3e-3)
+    free_end = solve_offline_hard(z, DT, max_acceleration=A_MAX, max_jerk=J_MAX,
+                                  rest_at_end=False)
+    assert free_end.status == ("converged", "converged")
+    capped = solve_offline_hard(z, DT, max_acceleration=A_MAX, max_jerk=J_MAX,
+                                rest_at_end=False, options=BandedIpOptions(max_iterations=80))
+    assert capped.status[0] == "max_iterations"      # the case still needs more than 80
 
 
 def test_the_method_sends_the_optimum_with_its_finite_difference_states():
