@@ -23,8 +23,10 @@ demo: venv
 methods: venv
 	$(BIN)/telesmooth demo --out out/methods
 
+# Two workers (the suite's files spread over both cores; each file's tests stay on one worker,
+# so a module's process fixture runs once). `pytest -m "not process"` skips the real processes.
 test: venv
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile
 
 # Static checks ([tool.ruff] in pyproject.toml); CI runs them before the tests.
 lint: venv

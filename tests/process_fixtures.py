@@ -14,10 +14,19 @@ import numpy as np
 TELESMOOTH = [sys.executable, "-m", "telesmooth.scripts.cli"]
 
 
+def worker_port(first_port: int, spread: int = 90) -> int:
+    """A udpm port from ``first_port`` on: + the pid modulo ``spread`` (two sessions on one
+    host part), + 1000 per pytest-xdist worker (the workers run modules at the same time, and
+    every module's range lies within 7300–8299)."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    index = int(worker[2:]) if worker[2:].isdigit() else 0
+    return first_port + 1000 * index + os.getpid() % spread
+
+
 def bus_urls(first_port: int) -> tuple[str, str]:
     """Two udpm buses (A, B) that stay on this host (ttl=0), 100 ports apart, chosen from
-    ``first_port`` by the pid so that modules of one session use their own ranges."""
-    port = first_port + os.getpid() % 90
+    ``first_port`` by :func:`worker_port`."""
+    port = worker_port(first_port)
     return (f"udpm://239.255.76.67:{port}?ttl=0", f"udpm://239.255.76.67:{port + 100}?ttl=0")
 
 

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from process_fixtures import worker_port
 from pydrake.lcm import DrakeLcm
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
@@ -316,12 +317,11 @@ def test_an_lcm_package_bus_is_pumped_by_the_subscriber_and_keeps_every_packet()
 def test_a_udpm_burst_reaches_the_onboard_subscriber_whole():
     # 40 packets sent back to back over udpm (ttl=0): the lcm.LCM path sees every one; the
     # DrakeLcm path (one queued message per subscription) is measured side by side.
-    import os
     import time
 
     import lcm as lcm_module
 
-    url = f"udpm://239.255.76.67:{7980 + os.getpid() % 15}?ttl=0"
+    url = f"udpm://239.255.76.67:{worker_port(7980, 15)}?ttl=0"
     sender = lcm_module.LCM(url)
     simulator, dut = _pumped_subscriber(lcm_module.LCM(url))
     small_simulator, small = _pumped_subscriber(lcm_module.LCM(url), queue_capacity=3)

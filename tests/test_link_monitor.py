@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from process_fixtures import worker_port
 
 from telesmooth.lcm_types import lcmt_onboard_joint_status
 from telesmooth.systems.link_monitor import (
@@ -153,7 +154,6 @@ def test_a_restarted_ground_takes_only_valid_telemetry_as_the_robot_pose():
     """processes.robot_commanded_pose: garbage, another type, NaN, a wrong joint count and a
     pose beyond the joint limits on ONBOARD_JOINT_STATUS are skipped; the valid pose is taken;
     with no valid telemetry it gives None (the ground then starts from the scenario)."""
-    import os
     import threading
     import time
 
@@ -165,7 +165,7 @@ def test_a_restarted_ground_takes_only_valid_telemetry_as_the_robot_pose():
 
     scenario = load_scenario()
     arm = scenario.arm_description
-    url = f"udpm://239.255.76.67:{7300 + os.getpid() % 90}?ttl=0"
+    url = f"udpm://239.255.76.67:{worker_port(7300)}?ttl=0"
     valid = 0.5 * (arm.joint_lower_rad + arm.joint_upper_rad) + 0.01
     beyond = np.array(arm.joint_upper_rad, dtype=float) + 0.1
     bad = [b"garbage", b"\x00" * 40, _status([np.nan] * arm.num_joints),

@@ -7,7 +7,6 @@ one host is the publish order, so the relay's fates must be exactly LinkFaultMod
 
 import collections
 import json
-import os
 import queue
 import select
 import signal
@@ -19,12 +18,13 @@ import warnings
 
 import lcm
 import pytest
+from process_fixtures import worker_port
 
 from telesmooth.lcm_types import channels, lcmt_onboard_joint_status, lcmt_teleop_joint_command
 from telesmooth.link import relay
 from telesmooth.link.faults import LinkFaultConfig, LinkFaultModel
 
-PORT_A = 7900 + os.getpid() % 50
+PORT_A = worker_port(7900, 50)
 PORT_B = PORT_A + 50
 URL_A = f"udpm://239.255.76.67:{PORT_A}?ttl=0"   # ground side
 URL_B = f"udpm://239.255.76.67:{PORT_B}?ttl=0"   # onboard side

@@ -16,7 +16,7 @@ from pathlib import Path
 import lcm
 import numpy as np
 import pytest
-from process_fixtures import PROCESS_TEST_TIMEOUT_S
+from process_fixtures import PROCESS_TEST_TIMEOUT_S, worker_port
 
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.diagrams.simulation import simulate
@@ -42,7 +42,7 @@ pytestmark = pytest.mark.process
 @pytest.fixture(scope="module")
 def two_process_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("two_processes")
-    port = 7700 + os.getpid() % 200
+    port = worker_port(7700, 200)
     url = f"udpm://239.255.76.67:{port}?ttl=0"
     bin_dir = Path(sys.executable).parent
     log_path = out / "uplink.lcmlog"
