@@ -155,6 +155,12 @@ PAIRED_SHARE = 0.25
 """The share of Ruckig's E_def the paired comparison counts the demonstrations above."""
 
 
+EXACT_DEFORMATION_M = 1e-9
+"""A deformation below 1 nm is round-off (the tracker's noise is 0.1 mm): a reference that
+small tracks the operator exactly and gives no ratio (a ratio over round-off is meaningless:
+it read 6e11 on a demonstration offline-hard passed unchanged)."""
+
+
 def paired_ratio(records: list[dict], label: str, reference: str,
                  key: str = "cartesian_deformation_mean_m") -> dict:
     """``key`` of run ``label`` over that of ``reference`` on each demonstration both ran.
@@ -162,8 +168,8 @@ def paired_ratio(records: list[dict], label: str, reference: str,
     Returns:
         {"n", "mean", "worst" (the largest ratio), "worst_demo" ("shape/demo"),
         "above_share" (demonstrations whose ratio exceeds :data:`PAIRED_SHARE`), "share",
-        "reference_zero" (demonstrations both ran where the reference's figure is 0: no
-        ratio)}; n = 0 and None figures when no ratio exists.
+        "reference_zero" (demonstrations both ran where the reference's figure is 0, or
+        below :data:`EXACT_DEFORMATION_M`: no ratio)}; n = 0 and None figures when no ratio exists.
     """
     values = {}
     for record in records:
@@ -173,9 +179,10 @@ def paired_ratio(records: list[dict], label: str, reference: str,
                 record["metrics"][key]
     both = {cell: pair for cell, pair in sorted(values.items())
             if label in pair and reference in pair}
-    # A demonstration the reference tracks exactly has no ratio; it is counted, not hidden.
+    # A demonstration the reference tracks exactly (within round-off: below
+    # EXACT_DEFORMATION_M) has no ratio; it is counted, not hidden.
     ratios = {cell: pair[label] / pair[reference] for cell, pair in both.items()
-              if pair[reference] > 0}
+              if pair[reference] > EXACT_DEFORMATION_M}
     skipped = len(both) - len(ratios)
     if not ratios:
         return {"n": 0, "mean": None, "worst": None, "worst_demo": None, "above_share": 0,

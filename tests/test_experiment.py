@@ -142,12 +142,16 @@ def test_online_hard_is_set_against_ruckig_demonstration_by_demonstration():
     records += [record("D", 0, "original", 10.0, 0.0),
                 record("D", 0, "online-hard", 10.0, 0.0, cartesian_deformation_mean_m=1.0),
                 record("D", 0, "ruckig", 10.0, 0.0, cartesian_deformation_mean_m=0.0)]
+    # E/0: Ruckig's deformation is round-off (1e-16 m): exact too, no ratio of 1e16.
+    records += [record("E", 0, "original", 10.0, 0.0),
+                record("E", 0, "online-hard", 10.0, 0.0, cartesian_deformation_mean_m=1.0),
+                record("E", 0, "ruckig", 10.0, 0.0, cartesian_deformation_mean_m=1e-16)]
     paired = summarize(records)["paired"]
     assert set(paired) == {"online-hard / ruckig"}
     row = paired["online-hard / ruckig"]
     assert row["n"] == 3 and row["mean"] == pytest.approx((0.1 + 0.5 + 0.2) / 3)
     assert row["worst"] == pytest.approx(0.5) and row["worst_demo"] == "B/0"
-    assert row["above_share"] == 1 and row["share"] == 0.25 and row["reference_zero"] == 1
+    assert row["above_share"] == 1 and row["share"] == 0.25 and row["reference_zero"] == 2
     # Without Ruckig in the grid there is nothing to pair.
     assert summarize([r for r in records if r["method"] != "ruckig"])["paired"] == {}
 
