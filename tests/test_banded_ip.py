@@ -12,7 +12,7 @@ import pytest
 from core_fixtures import operator_recording
 from test_offline import _assert_same_states, _dense_qp
 
-from telesmooth.smoothing.banded_ip import BandedIpOptions, solve_banded_qp
+from telesmooth.smoothing.banded_ip import BandedIpOptions, BandedQp, solve_banded_qp
 from telesmooth.smoothing.kalman import rest_prior, rts_smoother
 from telesmooth.smoothing.metrics import VIOLATION_RTOL
 from telesmooth.smoothing.model import JerkModel
@@ -358,6 +358,24 @@ def test_band_helpers_against_dense_matrices(monkeypatch, chunk_rows):
     assert _max_step((np.zeros(0),), (np.zeros(0),)) == np.inf
 
 
+def _solver_of_a_4hz_joint():
+    """solve(options) of one joint's trajectory-mode problem: 1000 samples at 4 Hz."""
+    from telesmooth.datasets.synthetic import synthetic_joint_motion
+    from telesmooth.smoothing.model import DEFAULT_DT_S, DEFAULT_R, DEFAULT_SIGMA
+
+    z = synthetic_joint_motion(1000, 6, dt_s=DEFAULT_DT_S, noise_rad=1e-3, seed=1000,
+                               position_limit_rad=1.5)[:, 1]
+    model = JerkModel.make(DEFAULT_DT_S, DEFAULT_SIGMA, DEFAULT_R, num_joints=1)
+    problem = banded_problem(z, model, 0, rest_prior(z[:1], model), z[0], 0.05, 0.1, np.inf,
+                             "trajectory", False)
+
+    def solve(options):
+        qp = BandedQp(*problem, options)
+        return qp.run(qp.unconstrained_optimum())
+
+    return solve
+
+
 @pytest.mark.parametrize("where", ["factorisation", "solve"])
 def test_a_breakdown_within_ten_times_the_gap_tolerance_ends_the_solve(monkeypatch, where):
     """When the normal equations lose definiteness at an iterate already within 10× of the gap
@@ -373,19 +391,7 @@ def test_a_breakdown_within_ten_times_the_gap_tolerance_ends_the_solve(monkeypat
     the forced run, identical up to its first acceptable iterate, must stop there or before."""
     from numpy.linalg import LinAlgError
 
-    from telesmooth.datasets.synthetic import synthetic_joint_motion
-    from telesmooth.smoothing.banded_ip import BandedQp
-    from telesmooth.smoothing.model import DEFAULT_DT_S, DEFAULT_R, DEFAULT_SIGMA
-
-    z = synthetic_joint_motion(1000, 6, dt_s=DEFAULT_DT_S, noise_rad=1e-3, seed=1000,
-                               position_limit_rad=1.5)[:, 1]
-    model = JerkModel.make(DEFAULT_DT_S, DEFAULT_SIGMA, DEFAULT_R, num_joints=1)
-    problem = banded_problem(z, model, 0, rest_prior(z[:1], model), z[0], 0.05, 0.1, np.inf,
-                             "trajectory", False)
-
-    def solve(options):
-        qp = BandedQp(*problem, options)
-        return qp.run(qp.unconstrained_optimum())
+    solve = _solver_of_a_4hz_joint()
 
     reference = solve(BandedIpOptions(linear_solver="qr"))
     assert reference.converged and reference.linear_solver == "qr"
@@ -426,19 +432,7 @@ def test_the_best_acceptable_iterate_is_returned_when_the_steps_after_it_lose_gr
     max_iterations;
     it is the optimum to 1e-7 rad (reference: the QR route). Without an acceptable iterate
     the failure stays a failure."""
-    from telesmooth.datasets.synthetic import synthetic_joint_motion
-    from telesmooth.smoothing.banded_ip import BandedQp
-    from telesmooth.smoothing.model import DEFAULT_DT_S, DEFAULT_R, DEFAULT_SIGMA
-
-    z = synthetic_joint_motion(1000, 6, dt_s=DEFAULT_DT_S, noise_rad=1e-3, seed=1000,
-                               position_limit_rad=1.5)[:, 1]
-    model = JerkModel.make(DEFAULT_DT_S, DEFAULT_SIGMA, DEFAULT_R, num_joints=1)
-    problem = banded_problem(z, model, 0, rest_prior(z[:1], model), z[0], 0.05, 0.1, np.inf,
-                             "trajectory", False)
-
-    def solve(options):
-        qp = BandedQp(*problem, options)
-        return qp.run(qp.unconstrained_optimum())
+    solve = _solver_of_a_4hz_joint()
 
     reference = solve(BandedIpOptions(linear_solver="qr"))
     normal = solve(BandedIpOptions())

@@ -134,6 +134,17 @@ def test_compare_e_of_a_robot_at_rest_is_the_tracker_noise_at_each_command_plus_
 # -- a known ramp: the tool is read when the set-point reaches each command ---------------
 
 
+def _shoulder_ramp(scenario, omega, n):
+    """``original`` through ``compare``'s chain on n uplink samples of the shoulder turning at
+    ω rad/s (the other joints still): (setup, run, t, z)."""
+    t = scenario.uplink.period_s * np.arange(n)
+    z = np.zeros((n, 3))
+    z[:, 0] = omega * t
+    setup = prepare_comparison(scenario, OperatorSamples(t_s=t, q=z, q_start=z[0].copy(),
+                                                         num_operator_samples=n))
+    return setup, run_method(setup, "original"), t, z
+
+
 @pytest.mark.parametrize("time_step_s", [0.0, 0.001])
 def test_e_of_a_constant_velocity_ramp_is_a_small_fraction_of_one_millisecond_of_travel(
         time_step_s):
@@ -153,12 +164,7 @@ def test_e_of_a_constant_velocity_ramp_is_a_small_fraction_of_one_millisecond_of
     one_ms_of_travel = radius * omega * 1e-3
     period = scenario.uplink.period_s
     n = 40
-    t = period * np.arange(n)
-    z = np.zeros((n, 3))
-    z[:, 0] = omega * t
-    setup = prepare_comparison(scenario, OperatorSamples(t_s=t, q=z, q_start=z[0].copy(),
-                                                         num_operator_samples=n))
-    run = run_method(setup, "original")
+    setup, run, t, z = _shoulder_ramp(scenario, omega, n)
     steady = run.response_error_m[20:]          # from 5 s: the start transient has died
     assert np.ptp(steady) < 1e-2 * one_ms_of_travel      # a steady state indeed
     assert steady.max() < 0.5 * one_ms_of_travel
@@ -185,12 +191,7 @@ def test_with_a_zero_order_hold_the_response_is_read_at_the_end_of_each_hold():
     assert response_delay_s(scenario) == period
     omega, radius = 0.05, sum(AIR_BEARING_ARM.link_lengths_m)
     n = 40
-    t = period * np.arange(n)
-    z = np.zeros((n, 3))
-    z[:, 0] = omega * t
-    setup = prepare_comparison(scenario, OperatorSamples(t_s=t, q=z, q_start=z[0].copy(),
-                                                         num_operator_samples=n))
-    run = run_method(setup, "original")
+    setup, run, t, z = _shoulder_ramp(scenario, omega, n)
     rows = [int(np.argmin(np.abs(run.tracker_t_s - (k * period + period)))) for k in range(n)]
     assert np.allclose(run.tracker_t_s[rows], t + period, rtol=0, atol=1e-9)
     expected = np.linalg.norm(setup.fk(z) - run.tool_position_m[rows], axis=1)
