@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from telesmooth.diagrams.offline import PlannedPathSource as ReExported
+from telesmooth.diagrams.offline_playback import PlannedPathSource as ReExported
 from telesmooth.systems.planned_path_source import PlannedPathSource
 
 TICK = 0.25
@@ -23,7 +23,7 @@ def _path(num_samples=4, num_joints=2):
     return q, states
 
 
-def test_offline_module_re_exports_the_system():
+def test_the_playback_module_re_exports_the_system():
     assert ReExported is PlannedPathSource
 
 
