@@ -2,15 +2,15 @@
 
 Per sample k: every entry finite; every joint within the arm's limits; the rigid arm at q_k no
 nearer than the collision checker's safety margin to the workspace or to itself (the
-pre-simulator's scene). Then the finite-difference velocity, acceleration and jerk of the path
-as the plant receives it (the committed history in front, the last pose held after) against
-the smoother's limits. :func:`validate_joint_path` returns the violations;
-:func:`validation_report` returns them with the closest distance per sample and the
-finite-difference statistics (:class:`ValidationReport`), as an offline plan
+pre-simulator's scene). Then the finite-difference acceleration and jerk (and velocity, given
+a velocity limit) of the path as the plant receives it (the committed history in front, the
+last pose held after) against the smoother's limits. :func:`validate_joint_path` returns the
+violations; :func:`validation_report` returns them with the closest distance per sample and
+the finite-difference statistics (:class:`ValidationReport`), as an offline plan
 (:mod:`~telesmooth.diagrams.offline_planning`) carries them.
 
 What is *not* checked: the robot's motion between two 4 Hz samples (its interpolator ramps
-linearly in joint space over one tick) and the flexible links' deflection; only the planned
+linearly in joint space over one tick) and the flexible links' deflection; only the path's
 samples themselves are validated, as the pre-simulator does online.
 """
 
