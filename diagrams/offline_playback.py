@@ -45,7 +45,6 @@ __all__ = [
     "AddPathPlayback",
     "MakeOfflinePlaybackDiagram",
     "OfflinePlaybackHandles",
-    "PlannedPathSource",
     "SignalLog",
     "copy_logs",
     "run_offline",
