@@ -60,14 +60,10 @@ from pydrake.systems.framework import DiagramBuilder
 
 from telesmooth.arms.collision import ArmCollisionModel
 from telesmooth.arms.joint_vectors import as_per_joint
-from telesmooth.diagrams.offline import (
-    AddPathPlayback,
-    copy_logs,
-    joint_targets_at_uplink_rate,
-    recording_ticks,
-    validate_joint_path,
-)
+from telesmooth.diagrams.offline_playback import AddPathPlayback, copy_logs
+from telesmooth.diagrams.offline_validation import validate_joint_path
 from telesmooth.diagrams.scenario import Scenario, make_haptic_recording
+from telesmooth.diagrams.session_sampling import joint_targets_at_uplink_rate, recording_ticks
 from telesmooth.diagrams.simulation import (
     plant_summary,
     response_delay_s,

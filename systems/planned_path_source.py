@@ -1,7 +1,8 @@
 """Playback of a planned joint path: the source that feeds a validated 4 Hz plan to the uplink.
 
-The offline mode (:mod:`telesmooth.diagrams.offline`) plans a whole recorded session with
-Offline-CKS and validates every sample; playback then replays the plan through the same 4 Hz
+The offline mode (:mod:`telesmooth.diagrams.offline_planning`) plans a whole recorded session
+with Offline-CKS and validates every sample; playback
+(:mod:`telesmooth.diagrams.offline_playback`) then replays the plan through the same 4 Hz
 :class:`~telesmooth.systems.uplink.Uplink` as the online chain. This system is the first stage of
 that playback: it holds row k of the plan over [t_k, t_{k+1}) and the last row afterwards.
 """

@@ -25,7 +25,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from telesmooth.arms.collision import ArmCollisionModel
-from telesmooth.diagrams.offline import validate_joint_path
+from telesmooth.diagrams.offline_validation import validate_joint_path
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.diagrams.simulation import simulate
 from telesmooth.diagrams.teleoperation import (

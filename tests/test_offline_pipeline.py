@@ -20,13 +20,10 @@ from telesmooth.arms.planar import (
     planar_forward_kinematics,
 )
 from telesmooth.arms.workspace import AIR_BEARING_WORKSPACE, BoxObstacle, Workspace
-from telesmooth.diagrams import offline
-from telesmooth.diagrams.offline import (
-    MakeOfflinePlaybackDiagram,
-    plan_offline,
-    run_offline,
-    validate_joint_path,
-)
+from telesmooth.diagrams import offline_planning
+from telesmooth.diagrams.offline_planning import plan_offline
+from telesmooth.diagrams.offline_playback import MakeOfflinePlaybackDiagram, run_offline
+from telesmooth.diagrams.offline_validation import validate_joint_path
 from telesmooth.diagrams.scenario import load_scenario, make_haptic_recording
 from telesmooth.smoothing.kalman import rest_start_prior
 from telesmooth.smoothing.metrics import VIOLATION_RTOL
@@ -212,7 +209,7 @@ def test_a_failed_solve_gives_an_invalid_plan_with_the_reason(scenario, monkeypa
             infeasible_constraints=((), ("fd_jerk_limit_elbow",), ()),
             tolerance_reached=np.full(j, np.nan))
 
-    monkeypatch.setattr(offline, "solve_offline_cks", failing_solve)
+    monkeypatch.setattr(offline_planning, "solve_offline_cks", failing_solve)
     dut = plan_offline(scenario)
     assert not dut.is_valid and not dut.validation.checked
     assert dut.reason == ("Offline-CKS failed for joint 'elbow': kInfeasibleConstraints "

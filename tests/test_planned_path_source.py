@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 
-from telesmooth.diagrams.offline import PlannedPathSource as ReExported
 from telesmooth.systems.planned_path_source import PlannedPathSource
 
 TICK = 0.25
@@ -21,10 +20,6 @@ def _path(num_samples=4, num_joints=2):
     states = np.random.default_rng(0).normal(size=(num_samples, num_joints, 4))
     states[:, :, 0] = q
     return q, states
-
-
-def test_offline_module_re_exports_the_system():
-    assert ReExported is PlannedPathSource
 
 
 def test_port_contract():

@@ -1,0 +1,214 @@
+"""Playback of a joint path: 4 Hz source → the scenario's Uplink → the onboard robot, logged.
+
+:func:`AddPathPlayback` adds the stages for any 4 Hz path (the method comparison plays every
+method's packets through it); :func:`MakeOfflinePlaybackDiagram` builds it only for a valid
+offline plan (:mod:`~telesmooth.diagrams.offline_planning`), re-checked against the scene it is
+played in; :func:`run_offline` plans, and plays the plan if it is valid; :func:`copy_logs`
+copies the loggers' records out of a finished simulation.
+
+Playback timing. The source holds ``q_planned[k]`` on [t_k, t_{k+1}) and the last row afterwards;
+the uplink's tick at t_k samples it, so packet k carries ``q_planned[k]`` exactly (a logger at
+t_k still shows packet k−1). The uplink and the robot start at ``plan.q_start``, the committed
+history the solver assumed, so the finite-difference limits hold across the start for what the
+plant actually receives; after the last packet the uplink keeps re-sending the last (rest) pose.
+There is no delay FIFO and no online smoother in playback: the plan is already smoothed and
+checked, and the robot executes it from t = 0.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput
+
+from telesmooth.diagrams.offline_planning import OfflinePlan, plan_offline
+from telesmooth.diagrams.offline_validation import (
+    PERIOD_RTOL,
+    describe_violations,
+    validation_report,
+)
+from telesmooth.diagrams.scenario import Scenario
+from telesmooth.diagrams.teleoperation import (
+    AddOnboardRobot,
+    add_onboard_loggers,
+    connect_uplink_to_robot,
+)
+from telesmooth.systems.flexible_arm import FlexibleJointArm
+from telesmooth.systems.laser_tracker import tracker_record
+from telesmooth.systems.planned_path_source import PlannedPathSource
+from telesmooth.systems.uplink import Uplink
+
+__all__ = [
+    "AddPathPlayback",
+    "MakeOfflinePlaybackDiagram",
+    "OfflinePlaybackHandles",
+    "SignalLog",
+    "copy_logs",
+    "run_offline",
+]
+
+
+@dataclasses.dataclass(frozen=True)
+class SignalLog:
+    """A copied VectorLog: sample times t_s (M,), s, and values (M, size)."""
+
+    t_s: np.ndarray
+    values: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class OfflinePlaybackHandles:
+    """A built playback diagram with its stages and loggers (name → VectorLogSink).
+
+    Attributes:
+        diagram: The diagram.
+        source: The planned-path source.
+        uplink: The 4 Hz uplink (same system as the online chain's).
+        robot: The flexible-joint arm.
+        logs: "sequence_number", "send_time", "q_sent", "state_sent" at the uplink period
+            (a row at t_k shows packet k−1) and the robot's "tracker" (its samples with their
+            measurement times) and "command_rejected" at the tracker period.
+        plan: The plan played.
+        duration_s: Suggested simulated time: the last packet plus ``scenario.settle_s``
+            (and at least one tick more, so the loggers see the last packet), or
+            ``scenario.simulation_duration_s`` if that is longer.
+    """
+
+    diagram: object
+    source: PlannedPathSource
+    uplink: Uplink
+    robot: FlexibleJointArm
+    logs: dict
+    plan: OfflinePlan
+    duration_s: float
+
+
+def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q_start,
+                    states=None):
+    """Adds a 4 Hz joint path → the scenario's Uplink → the onboard robot, with loggers.
+
+    No check is made here: callers that command a real or a safety-relevant plant validate
+    the path first (:func:`MakeOfflinePlaybackDiagram` does). Row k of ``positions`` is
+    packet k, sent at t_k = k·Δt; the uplink and the robot start at rest at ``q_start``.
+
+    Args:
+        builder: The builder to add to.
+        scenario: The uplink period, arm and onboard settings.
+        positions: The path, rad, (N, J).
+        q_start: The robot's start pose, rad, (J,).
+        states: Optional [q, q̇, q̈, q⃛] per row, (N, J, 4), sent with the packets.
+
+    Returns:
+        (source, uplink, robot, logs): ``logs`` as :class:`OfflinePlaybackHandles`.
+    """
+    arm = scenario.arm_description
+    period = scenario.uplink.period_s
+    # Stage 1: the path, one row per uplink tick.
+    source = builder.AddNamedSystem("planned_path_source", PlannedPathSource(
+        positions, period_s=period, states=states))
+    # Stage 2: the same 4 Hz uplink as the online chain, starting at the committed pose.
+    uplink = builder.AddNamedSystem("uplink", Uplink(
+        scenario.uplink, num_joints=arm.num_joints, initial_position_rad=q_start))
+    builder.Connect(source.get_q_planned_output_port(), uplink.get_q_smoothed_input_port())
+    builder.Connect(source.get_state_planned_output_port(),
+                    uplink.get_state_smoothed_input_port())
+    # Stage 3: the onboard robot, at rest at the committed pose.
+    robot = AddOnboardRobot(builder, scenario, initial_position_rad=q_start,
+                            command_period_s=period)
+    connect_uplink_to_robot(builder, uplink, robot)
+    logs = {
+        "sequence_number": LogVectorOutput(uplink.get_sequence_number_output_port(), builder,
+                                           period),
+        "send_time": LogVectorOutput(uplink.get_send_time_output_port(), builder, period),
+        "q_sent": LogVectorOutput(uplink.get_q_sent_output_port(), builder, period),
+        "state_sent": LogVectorOutput(uplink.get_state_sent_output_port(), builder, period),
+    }
+    logs.update(add_onboard_loggers(builder, robot, scenario.onboard.tracker.period_s))
+    return source, uplink, robot, logs
+
+
+def MakeOfflinePlaybackDiagram(scenario: Scenario, plan: OfflinePlan) -> OfflinePlaybackHandles:
+    """Playback of a valid plan: 4 Hz planned-path source → Uplink → onboard robot.
+
+    The plan is checked again against ``scenario`` (its arm, workspace, margin and limits),
+    so a plan made for one scene cannot be played in another where it is unsafe.
+
+    Raises:
+        ValueError: If the plan is not valid (the message gives the reason and the first
+            violations), fails the check against ``scenario``, or does not match its arm or
+            uplink period. Nothing is built then.
+    """
+    if not isinstance(plan, OfflinePlan):
+        raise ValueError(f"plan = {type(plan).__name__} object; expected an OfflinePlan")
+    arm = scenario.arm_description
+    if tuple(plan.joint_names) != arm.joint_names:
+        raise ValueError(f"the plan's joints {plan.joint_names!r} are not the scenario arm's "
+                         f"{arm.joint_names!r}")
+    period = scenario.uplink.period_s
+    if abs(plan.period_s - period) > PERIOD_RTOL * period:
+        raise ValueError(f"the plan's period {plan.period_s!r} s differs from the uplink "
+                         f"period {period!r} s")
+    if not plan.is_valid:
+        raise ValueError("refusing to play back an invalid offline plan: " + plan.reason)
+    # The plan was validated against its own scenario; re-check only against another one.
+    recheck = None if scenario is plan.scenario else validation_report(
+        plan.q_planned, plan.t_s, scenario, start_position=plan.q_start,
+        check_fd_limits=plan.validation.fd_limits_enforced,
+        max_velocity=plan.max_velocity_rad_per_s)
+    if recheck is not None and recheck.violations:
+        raise ValueError("refusing to play back an offline plan that fails the check against "
+                         "this scenario: " + describe_violations(recheck.violations))
+
+    builder = DiagramBuilder()
+    source, uplink, robot, logs = AddPathPlayback(
+        builder, scenario, plan.q_planned, states=plan.states_planned, q_start=plan.q_start)
+    diagram = builder.Build()
+    diagram.set_name("offline_playback")
+    last_packet = float(plan.t_s[-1])
+    duration = max(last_packet + max(scenario.settle_s, period),
+                   scenario.simulation_duration_s or 0.0)
+    return OfflinePlaybackHandles(diagram=diagram, source=source, uplink=uplink, robot=robot,
+                                  logs=logs, plan=plan, duration_s=duration)
+
+
+def run_offline(scenario: Scenario, *, constraint: str = "trajectory", max_velocity=None,
+                duration_s: float | None = None):
+    """Plans, validates and, if the plan is valid, plays it back.
+
+    Args:
+        scenario: The session and the set-up.
+        constraint, max_velocity: As :func:`plan_offline`.
+        duration_s: Simulated playback time, s; default the handles' ``duration_s``.
+
+    Returns:
+        (plan, logs): ``logs`` maps each logger name of :class:`OfflinePlaybackHandles` to a
+        :class:`SignalLog` copy; it is None when the plan is not valid (nothing is played).
+
+    Raises:
+        ValueError: As :func:`plan_offline` for invalid input.
+    """
+    plan = plan_offline(scenario, constraint=constraint, max_velocity=max_velocity)
+    if not plan.is_valid:
+        return plan, None
+    handles = MakeOfflinePlaybackDiagram(scenario, plan)
+    simulator = Simulator(handles.diagram)
+    simulator.AdvanceTo(handles.duration_s if duration_s is None else float(duration_s))
+    return plan, copy_logs(handles.logs, simulator.get_context())
+
+
+def copy_logs(loggers: dict, root_context) -> dict:
+    """Copies each VectorLogSink's log out of a root context: name → :class:`SignalLog`,
+    except "tracker" (:func:`add_onboard_loggers`), which becomes a
+    :class:`~telesmooth.systems.laser_tracker.TrackerRecord`: each sample at the time it
+    was measured, not the time it was logged."""
+    copies = {}
+    for name, logger in loggers.items():
+        log = logger.FindLog(root_context)
+        if name == "tracker":
+            copies[name] = tracker_record(log.data().T)
+        else:
+            copies[name] = SignalLog(t_s=log.sample_times().copy(), values=log.data().T.copy())
+    return copies
