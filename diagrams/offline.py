@@ -43,7 +43,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
 from telesmooth.arms.collision import ArmCollisionModel
-from telesmooth.arms.joint_vectors import as_per_joint
+from telesmooth.arms.joint_vectors import as_per_joint, check_finite_per_joint
 from telesmooth.diagrams.scenario import Scenario, initial_position, make_haptic_recording
 from telesmooth.diagrams.teleoperation import (
     AddOnboardRobot,
@@ -426,9 +426,8 @@ def _validate(q, t_s, scenario: Scenario, *, start_position=None, check_fd_limit
     if collision_model is None:
         collision_model = ArmCollisionModel(arm, scenario.workspace_or_default,
                                             distance_horizon_m=checker.distance_horizon_m)
-    start = q[0] if start_position is None else np.asarray(start_position, dtype=float)
-    if start.shape != (arm.num_joints,) or not np.all(np.isfinite(start)):
-        raise ValueError(f"start_position must be {arm.num_joints} finite values; got {start!r}")
+    start = q[0] if start_position is None else check_finite_per_joint(
+        "start_position", start_position, arm.num_joints, names)
     non_finite, limits, collisions = [], [], []
     distances = np.full(q.shape[0], np.nan)
     pairs = []
