@@ -5,8 +5,16 @@ Shared by the smoothers, the safety core and the systems (per-joint limits, traj
 positive scalars) and by every place that takes a configuration of an arm from a caller (the
 inverse kinematics' initial target, the 6-DOF IK's seed, the collision model's query), so that
 each says the same thing about a bad vector: the field, the value and, for a bad entry, the
-joint. All checks raise ``ValueError`` (bad values) and never modify their inputs. Pure numpy:
-the lowest layer, importable from every package.
+joint. All checks raise ``ValueError`` (bad values) and never modify their inputs. Pure numpy
+(and the top-level ``user_input``'s quoting): the lowest layer, importable from every package.
+
+A joint vector's messages, from :func:`check_joint_vector` and :func:`check_finite_per_joint`
+(every system's initial pose and limits, every smoother's start pose, ...), are one line each,
+the field as the caller wrote it, then the value cut short or the bad entry and its joint::
+
+    q_start = [0.0] has shape (1,); expected (2,), one per joint of ('shoulder', 'elbow')
+    q_start[1] = nan for joint 1 ('elbow') must be finite
+    q_start[1] = 3.2 for joint 1 ('elbow') must be finite and within [-2.9, 2.9] rad
 """
 
 from __future__ import annotations
@@ -16,13 +24,50 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from telesmooth.user_input import quote
+
 __all__ = [
     "as_per_joint",
+    "check_finite_per_joint",
     "check_joint_vector",
     "check_positive_int",
     "check_positive_scalar",
     "check_trajectory",
 ]
+
+
+def check_finite_per_joint(field: str, value, num_joints: int,
+                           joint_names: Sequence[str] | None = None) -> np.ndarray:
+    """``value`` as a float array of shape (num_joints,) whose entries are all finite.
+
+    The count-and-finite check of a joint vector: one number per joint, none NaN or ±inf. It
+    is :func:`check_joint_vector` without the limits and without needing the joints' names
+    (a system that knows only its joint count), for any per-joint quantity (a pose, a
+    measurement, the joint limits themselves). The messages are those of
+    :func:`check_joint_vector`.
+
+    Args:
+        field: The argument's name as the caller wrote it (e.g. ``"initial_position_rad"``).
+        value: The vector, (num_joints,).
+        num_joints: n.
+        joint_names: The joints' names, (n,), for the messages; None if unknown (the joint
+            is then named by its index only).
+
+    Returns:
+        A new float array of shape (num_joints,).
+
+    Raises:
+        ValueError: in one line: if ``value`` is not numeric or does not have one entry per
+            joint, the field, the value (cut short) and the joints; if an entry is not
+            finite, the field, the index, the joint and the entry.
+    """
+    q = _joint_array(field, value, num_joints, joint_names)
+    if not np.isfinite(q).all():
+        i = int(np.flatnonzero(~np.isfinite(q))[0])
+        raise ValueError(
+            f"{field}[{i}] = {float(q[i])!r} for {_joint_label(i, joint_names)} must be finite"
+        )
+    return q
 
 
 def check_joint_vector(field: str, value, joint_names: Sequence[str], *, lower=None,
@@ -42,34 +87,48 @@ def check_joint_vector(field: str, value, joint_names: Sequence[str], *, lower=N
         ValueError: If ``value`` is not numeric or does not have one entry per joint (the
             message gives the field, the value and the joints), or an entry is not finite or,
             with limits, outside them (the message gives the field, the index, the joint and
-            the entry).
+            the entry); see :func:`check_finite_per_joint`.
     """
     names = tuple(joint_names)
-    n = len(names)
     if (lower is None) != (upper is None):
         raise ValueError("check_joint_vector: give both lower and upper limits, or neither")
+    if lower is None:
+        return check_finite_per_joint(field, value, len(names), names)
+    q = _joint_array(field, value, len(names), names)
+    for i, entry in enumerate(q):
+        if not (math.isfinite(entry) and lower[i] <= entry <= upper[i]):
+            raise ValueError(
+                f"{field}[{i}] = {float(entry)!r} for {_joint_label(i, names)} must be finite "
+                f"and within [{float(lower[i])!r}, {float(upper[i])!r}] rad"
+            )
+    return q
+
+
+def _joint_array(field: str, value, num_joints: int,
+                 joint_names: Sequence[str] | None) -> np.ndarray:
+    """``value`` as a new float array of shape (num_joints,) (entries not checked)."""
     try:
         q = np.array(value, dtype=float)
     except (TypeError, ValueError):
         raise ValueError(
-            f"{field} = {value!r} must be {n} joint angles in rad, ordered {names!r}"
+            f"{field} = {_quote_vector(value)} must be {num_joints} numbers, "
+            f"{_one_per_joint(joint_names)}"
         ) from None
-    if q.shape != (n,):
+    if q.shape != (num_joints,):
         raise ValueError(
-            f"{field} = {value!r} has shape {q.shape}; expected ({n},) for the joints {names!r}"
+            f"{field} = {_quote_vector(value)} has shape {q.shape}; expected ({num_joints},), "
+            f"{_one_per_joint(joint_names)}"
         )
-    for i, entry in enumerate(q):
-        if lower is None:
-            if not math.isfinite(entry):
-                raise ValueError(
-                    f"{field}[{i}] (joint {names[i]!r}) = {float(entry)!r} must be finite"
-                )
-        elif not (math.isfinite(entry) and lower[i] <= entry <= upper[i]):
-            raise ValueError(
-                f"{field}[{i}] (joint {names[i]!r}) = {float(entry)!r} must be finite and "
-                f"within [{float(lower[i])!r}, {float(upper[i])!r}] rad"
-            )
     return q
+
+
+def _quote_vector(value) -> str:
+    """The value as the caller wrote it, on one line and cut short (an array as a list)."""
+    return quote(value.tolist() if isinstance(value, np.ndarray) else value)
+
+
+def _one_per_joint(joint_names: Sequence[str] | None) -> str:
+    return "one per joint" if joint_names is None else f"one per joint of {tuple(joint_names)!r}"
 
 
 def _joint_label(index: int, joint_names: Sequence[str] | None) -> str:

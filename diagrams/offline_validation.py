@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 from telesmooth.arms.collision import ArmCollisionModel
-from telesmooth.arms.joint_vectors import as_per_joint
+from telesmooth.arms.joint_vectors import as_per_joint, check_finite_per_joint
 from telesmooth.diagrams.scenario import Scenario
 from telesmooth.smoothing.metrics import VIOLATION_RTOL, finite_differences, limit_statistics
 from telesmooth.smoothing.offline import HISTORY_LENGTH, with_rest_history
@@ -163,9 +163,8 @@ def validation_report(q, t_s, scenario: Scenario, *, start_position=None, check_
     if collision_model is None:
         collision_model = ArmCollisionModel(arm, scenario.workspace_or_default,
                                             distance_horizon_m=checker.distance_horizon_m)
-    start = q[0] if start_position is None else np.asarray(start_position, dtype=float)
-    if start.shape != (arm.num_joints,) or not np.all(np.isfinite(start)):
-        raise ValueError(f"start_position must be {arm.num_joints} finite values; got {start!r}")
+    start = q[0] if start_position is None else check_finite_per_joint(
+        "start_position", start_position, arm.num_joints, names)
     non_finite, limits, collisions = [], [], []
     distances = np.full(q.shape[0], np.nan)
     pairs = []

@@ -27,7 +27,7 @@ from telesmooth.arms.air_bearing import (
     space_arm_pose_to_planar,
 )
 from telesmooth.arms.description import ARMS, ArmDescription
-from telesmooth.arms.joint_vectors import as_per_joint
+from telesmooth.arms.joint_vectors import as_per_joint, check_joint_vector
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_3r_inverse_kinematics
 from telesmooth.arms.workspace import AIR_BEARING_WORKSPACE, SPACE_ARM_WORKSPACE, Workspace
 from telesmooth.datasets.haptic_recording import (
@@ -236,19 +236,10 @@ class Scenario:
             except ValueError as error:
                 raise ValueError(f"smoother.{error}") from None
         if self.initial_position_rad is not None:
-            q0 = np.asarray(self.initial_position_rad, dtype=float)
             description = self.arm_description
-            if q0.shape != (description.num_joints,):
-                raise ValueError(
-                    f"initial_position_rad = {self.initial_position_rad!r} must have "
-                    f"{description.num_joints} values ({description.joint_names})")
-            for name, value, lo, hi in zip(description.joint_names, q0,
-                                           description.joint_lower_rad,
-                                           description.joint_upper_rad):
-                if not (math.isfinite(value) and lo <= value <= hi):
-                    raise ValueError(
-                        f"initial_position_rad[{name!r}] = {float(value)!r} must be within "
-                        f"[{lo:.4f}, {hi:.4f}] rad")
+            check_joint_vector("initial_position_rad", self.initial_position_rad,
+                               description.joint_names, lower=description.joint_lower_rad,
+                               upper=description.joint_upper_rad)
 
     @property
     def arm_description(self) -> ArmDescription:

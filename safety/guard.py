@@ -70,7 +70,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from telesmooth.arms.joint_vectors import _joint_label, as_per_joint
+from telesmooth.arms.joint_vectors import _joint_label, as_per_joint, check_joint_vector
 from telesmooth.safety.limiter import (
     DEFAULT_MARGIN,
     HISTORY_LENGTH,
@@ -288,23 +288,6 @@ def _check_names(joint_names) -> tuple[str, ...]:
     return names
 
 
-def _joint_vector(field: str, value, names) -> np.ndarray:
-    n = len(names)
-    try:
-        array = np.array(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"{field} = {value!r} must be {n} numbers") from None
-    if array.shape != (n,):
-        raise ValueError(f"{field} = {np.ravel(array).tolist()!r} must have {n} values "
-                         f"(one per joint of {list(names)!r})")
-    for i, entry in enumerate(array):
-        if not math.isfinite(entry):
-            raise ValueError(f"{field}[{i}] = {float(entry)!r} for {_joint_label(i, names)} "
-                             "must be finite")
-    array.flags.writeable = False
-    return array
-
-
 def guard_params(config: LinkGuardConfig = LinkGuardConfig(), *, joint_names, lower_rad,
                  upper_rad, initial_position_rad, max_acceleration, max_jerk,
                  max_velocity=None,
@@ -331,19 +314,17 @@ def guard_params(config: LinkGuardConfig = LinkGuardConfig(), *, joint_names, lo
         raise ValueError(f"config = {config!r} must be a LinkGuardConfig")
     names = _check_names(joint_names)
     n = len(names)
-    lower = _joint_vector("lower_rad", lower_rad, names)
-    upper = _joint_vector("upper_rad", upper_rad, names)
+    lower = check_joint_vector("lower_rad", lower_rad, names)
+    upper = check_joint_vector("upper_rad", upper_rad, names)
     for i in range(n):
         if not lower[i] < upper[i]:
             raise ValueError(
-                f"lower_rad[{i}] = {float(lower[i])!r} must be < upper_rad[{i}] = "
-                f"{float(upper[i])!r} for {_joint_label(i, names)}")
-    q0 = _joint_vector("initial_position_rad", initial_position_rad, names)
-    for i in range(n):
-        if not lower[i] <= q0[i] <= upper[i]:
-            raise ValueError(
-                f"initial_position_rad[{i}] = {float(q0[i])!r} for {_joint_label(i, names)} "
-                f"must be within [{float(lower[i])!r}, {float(upper[i])!r}]")
+                f"lower_rad[{i}] = {float(lower[i])!r} for {_joint_label(i, names)} must be "
+                f"< upper_rad[{i}] = {float(upper[i])!r}")
+    q0 = check_joint_vector("initial_position_rad", initial_position_rad, names, lower=lower,
+                            upper=upper)
+    for array in (lower, upper, q0):
+        array.flags.writeable = False
     a_max = as_per_joint("max_acceleration", max_acceleration, n, names)
     j_max = as_per_joint("max_jerk", max_jerk, n, names)
     v_max = None if max_velocity is None else as_per_joint(

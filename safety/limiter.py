@@ -133,7 +133,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from telesmooth.arms.joint_vectors import _joint_label, as_per_joint, check_positive_scalar
+from telesmooth.arms.joint_vectors import (
+    as_per_joint,
+    check_finite_per_joint,
+    check_positive_scalar,
+)
 
 __all__ = [
     "DEFAULT_MARGIN",
@@ -580,18 +584,6 @@ def limiter_params(
         lower_rows=lower, inverse_gb=_readonly(inverse))
 
 
-def _check_pose(params: LimiterParams, field: str, q) -> np.ndarray:
-    q = np.array(q, dtype=float)
-    if q.shape != (params.num_joints,):
-        raise ValueError(f"{field} has shape {q.shape}; expected ({params.num_joints},)")
-    bad = np.flatnonzero(~np.isfinite(q))
-    if bad.size:
-        i = int(bad[0])
-        raise ValueError(f"{field}[{i}] = {float(q[i])!r} for "
-                         f"{_joint_label(i, params.joint_names)} must be finite")
-    return q
-
-
 def limiter_rest_state(params: LimiterParams, q, *, field: str = "q") -> LimiterState:
     """At rest at ``q`` (J,) [rad]: history p_{−1} = p_{−2} = p_{−3} = q, v = a = 0.
 
@@ -599,7 +591,7 @@ def limiter_rest_state(params: LimiterParams, q, *, field: str = "q") -> Limiter
         ValueError: a wrong shape or a non-finite entry (naming ``field``, the joint and the
             value).
     """
-    q = _check_pose(params, field, q)
+    q = check_finite_per_joint(field, q, params.num_joints, params.joint_names)
     zeros = np.zeros_like(q)
     return LimiterState(position=q, velocity=zeros, acceleration=zeros.copy(),
                         sent=np.tile(q, (HISTORY_LENGTH + 1, 1)), targets=np.tile(q, (2, 1)),

@@ -41,7 +41,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from telesmooth.arms.joint_vectors import check_positive_int, check_trajectory
+from telesmooth.arms.joint_vectors import (
+    check_finite_per_joint,
+    check_positive_int,
+    check_trajectory,
+)
 from telesmooth.smoothing.model import MAX_LAG, SCALED_TRANSITION, STATE_SIZE, JerkModel
 
 FIXED_LAG_FORMS = ("recursion", "superstate")
@@ -108,11 +112,7 @@ class FixedLagSmoother:
 
     def initial_state(self, start_position) -> FixedLagState:
         """Rest start (I1) at ``start_position`` (num_joints,) [rad]."""
-        q0 = np.asarray(start_position, dtype=float)
-        if q0.shape != (self.model.num_joints,) or not np.all(np.isfinite(q0)):
-            raise ValueError(
-                f"start_position must be {self.model.num_joints} finite values; got {q0!r}"
-            )
+        q0 = check_finite_per_joint("start_position", start_position, self.model.num_joints)
         num_joints, blocks = self.model.num_joints, self.num_blocks
         means = np.zeros((num_joints, blocks, STATE_SIZE))
         means[:, :, 0] = q0[:, None]
@@ -127,11 +127,7 @@ class FixedLagSmoother:
 
     def step(self, state: FixedLagState, measurement, sigma=None) -> FixedLagState:
         """Absorbs z_k (num_joints,) [rad] with σ_k (num_joints,) for the transition into k."""
-        z = np.asarray(measurement, dtype=float)
-        if z.shape != (self.model.num_joints,) or not np.all(np.isfinite(z)):
-            raise ValueError(
-                f"measurement must be {self.model.num_joints} finite values; got {z!r}"
-            )
+        z = check_finite_per_joint("measurement", measurement, self.model.num_joints)
         q_scaled = (self._default_q_scaled if sigma is None
                     else self.model.scaled_process_covariance(sigma))
         if self.method == "superstate":

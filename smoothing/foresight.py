@@ -38,7 +38,12 @@ import math
 import numpy as np
 from pydrake.solvers import ClarabelSolver, MathematicalProgram, QuadraticCost, SolverOptions
 
-from telesmooth.arms.joint_vectors import _joint_label, as_per_joint, check_trajectory
+from telesmooth.arms.joint_vectors import (
+    _joint_label,
+    as_per_joint,
+    check_finite_per_joint,
+    check_trajectory,
+)
 from telesmooth.smoothing.offline import finite_difference_operator
 
 __all__ = ["ContinuationResult", "ForesightSweep", "best_continuation", "foresight_sweep"]
@@ -119,13 +124,8 @@ def best_continuation(commands, reference, start: int, dt_s: float, *, max_accel
     jerk = as_per_joint("max_jerk_rad_per_s3", max_jerk, num_joints, joint_names)
     vel = (np.full(num_joints, np.inf) if max_velocity is None else as_per_joint(
         "max_velocity_rad_per_s", max_velocity, num_joints, joint_names, allow_inf=True))
-    q_rest = z[0] if rest is None else np.asarray(rest, dtype=float)
-    if q_rest.shape != (num_joints,):
-        raise ValueError(f"rest has shape {q_rest.shape}; expected ({num_joints},)")
-    for j, value in enumerate(q_rest):
-        if not math.isfinite(value):
-            raise ValueError(f"rest[{j}] = {float(value)!r} for "
-                             f"{_joint_label(j, joint_names)} must be finite")
+    q_rest = z[0] if rest is None else check_finite_per_joint("rest", rest, num_joints,
+                                                              joint_names)
 
     n = num_samples - start
     limits = [(order, limit * dt_s**order) for order, limit in ((1, vel), (2, acc), (3, jerk))]

@@ -54,7 +54,12 @@ from pydrake.solvers import (
 from scipy.linalg import LinAlgError
 from threadpoolctl import threadpool_limits
 
-from telesmooth.arms.joint_vectors import as_per_joint, check_positive_int, check_trajectory
+from telesmooth.arms.joint_vectors import (
+    as_per_joint,
+    check_finite_per_joint,
+    check_positive_int,
+    check_trajectory,
+)
 from telesmooth.smoothing.banded_ip import BandedIpOptions, BandedQp
 from telesmooth.smoothing.kalman import GaussianPrior, rest_prior, rts_smoother
 from telesmooth.smoothing.model import (
@@ -225,9 +230,8 @@ def solve_offline_cks(
            as_per_joint("max_velocity_rad_per_s", max_velocity, num_joints, names, allow_inf=True))
     block_size = check_positive_int("block_size", block_size)
     prior = prior if prior is not None else rest_prior(z[0], model)
-    q_start = z[0] if start_position is None else np.asarray(start_position, dtype=float)
-    if q_start.shape != (num_joints,) or not np.all(np.isfinite(q_start)):
-        raise ValueError(f"start_position must be {num_joints} finite values; got {q_start!r}")
+    q_start = z[0] if start_position is None else check_finite_per_joint(
+        "start_position", start_position, num_joints, joint_names)
 
     dt = model.dt_s
     states = np.empty((num_samples, num_joints, 4))

@@ -30,7 +30,7 @@ import math
 import numpy as np
 import scipy.sparse as sparse
 
-from telesmooth.arms.joint_vectors import _joint_label, as_per_joint, check_trajectory
+from telesmooth.arms.joint_vectors import as_per_joint, check_finite_per_joint, check_trajectory
 from telesmooth.smoothing.banded_ip import BandedIpOptions, BandedQp
 from telesmooth.smoothing.offline import HISTORY_LENGTH, finite_difference_operator
 
@@ -121,13 +121,8 @@ def solve_offline_hard(reference, dt_s: float, *, max_acceleration, max_jerk,
                         allow_inf=True)
     vel = (np.full(num_joints, np.inf) if max_velocity is None else as_per_joint(
         "max_velocity_rad_per_s", max_velocity, num_joints, joint_names, allow_inf=True))
-    q_start = z[0] if start_position is None else np.asarray(start_position, dtype=float)
-    if q_start.shape != (num_joints,):
-        raise ValueError(f"start_position has shape {q_start.shape}; expected ({num_joints},)")
-    for j, value in enumerate(q_start):
-        if not math.isfinite(value):
-            raise ValueError(f"start_position[{j}] = {float(value)!r} for "
-                             f"{_joint_label(j, joint_names)} must be finite")
+    q_start = z[0] if start_position is None else check_finite_per_joint(
+        "start_position", start_position, num_joints, joint_names)
     options = options if options is not None else BandedIpOptions()
     positions = np.full((num_samples, num_joints), np.nan)
     squared = np.full(num_joints, np.nan)

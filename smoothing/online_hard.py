@@ -15,7 +15,7 @@ import warnings
 
 import numpy as np
 
-from telesmooth.arms.joint_vectors import _joint_label, check_trajectory
+from telesmooth.arms.joint_vectors import _joint_label, check_finite_per_joint, check_trajectory
 from telesmooth.safety.limiter import (
     DEFAULT_MARGIN,
     HISTORY_LENGTH,
@@ -147,11 +147,12 @@ class OnlineHardLimiter:
         return self.state.ticks
 
     def reset(self, q) -> None:
-        """Rest at ``q`` (num_joints,) [rad]: history p_{−1} = p_{−2} = p_{−3} = q, v = a = 0."""
-        q = np.asarray(q, dtype=float)
-        if q.shape != (self.num_joints,):
-            raise ValueError(f"q = {q!r} must have shape ({self.num_joints},)")
-        self.state = limiter_rest_state(self.params, q)
+        """Rest at ``q`` (num_joints,) [rad]: history p_{−1} = p_{−2} = p_{−3} = q, v = a = 0.
+
+        Raises:
+            ValueError: a wrong count or a non-finite entry (field ``q``, the joint, the value).
+        """
+        self.state = limiter_rest_state(self.params, q, field="q")
 
     @property
     def state_size(self) -> int:
@@ -241,9 +242,7 @@ def online_hard_run(
                 lookahead.shape[2] != num_joints):
             raise ValueError(f"lookahead has shape {lookahead.shape}; expected "
                              f"({num_samples}, L, {num_joints})")
-    if np.asarray(q_start).shape != (num_joints,):
-        raise ValueError(f"q_start has shape {np.asarray(q_start).shape}; expected "
-                         f"({num_joints},)")
+    q_start = check_finite_per_joint("q_start", q_start, num_joints, joint_names)
     limiter = OnlineHardLimiter(dt_s=dt_s, max_acceleration=max_acceleration, max_jerk=max_jerk,
                                 max_velocity=max_velocity, q_start=q_start,
                                 joint_names=joint_names, rule=rule, margin=margin)

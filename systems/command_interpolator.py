@@ -31,6 +31,7 @@ from pydrake.symbolic import min as symbolic_min
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import SymbolicVectorSystem
 
+from telesmooth.arms.joint_vectors import _joint_label, check_joint_vector
 from telesmooth.systems.timing import check_period
 
 __all__ = [
@@ -187,20 +188,6 @@ def command_violation(
     return None
 
 
-def _validated_vector(field: str, values, size: int) -> np.ndarray:
-    """``values`` as a finite float vector of length ``size``, or ValueError naming ``field``."""
-    try:
-        vector = np.asarray(values, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"{field} = {values!r} must be {size} numbers") from None
-    if vector.shape != (size,):
-        raise ValueError(f"{field} = {values!r} must have {size} values, got shape {vector.shape}")
-    for index, value in enumerate(vector):
-        if not math.isfinite(value):
-            raise ValueError(f"{field}[{index}] = {float(value)!r} must be finite")
-    return vector
-
-
 def RampSetPoint(num_joints: int, ramp_duration_s: float, lead_s: float = 0.0, *,
                  continuous_state: bool = False) -> SymbolicVectorSystem:
     r"""The set-point of a ramp, evaluated by Drake: [t₀; q₀; q₁] and the time → [q_d; v_d].
@@ -308,23 +295,18 @@ class CommandGate(LeafSystem):
         if len(set(names)) != len(names):
             raise ValueError(f"joint_names = {joint_names!r} must be unique")
         n = len(names)
-        lower = _validated_vector("lower_rad", lower_rad, n)
-        upper = _validated_vector("upper_rad", upper_rad, n)
+        lower = check_joint_vector("lower_rad", lower_rad, names)
+        upper = check_joint_vector("upper_rad", upper_rad, names)
         for index in range(n):
             if not lower[index] < upper[index]:
                 raise ValueError(
-                    f"lower_rad[{index}] ({names[index]}) = {float(lower[index])!r} must be "
-                    f"below upper_rad[{index}] = {float(upper[index])!r}"
+                    f"lower_rad[{index}] = {float(lower[index])!r} for "
+                    f"{_joint_label(index, names)} must be < upper_rad[{index}] = "
+                    f"{float(upper[index])!r}"
                 )
-        q0 = np.zeros(n) if initial_position_rad is None else _validated_vector(
-            "initial_position_rad", initial_position_rad, n)
-        for index in range(n):
-            if not lower[index] <= q0[index] <= upper[index]:
-                raise ValueError(
-                    f"initial_position_rad[{index}] ({names[index]}) = {float(q0[index])!r} "
-                    f"is outside the joint limits [{float(lower[index])!r}, "
-                    f"{float(upper[index])!r}]"
-                )
+        q0 = check_joint_vector(
+            "initial_position_rad", np.zeros(n) if initial_position_rad is None
+            else initial_position_rad, names, lower=lower, upper=upper)
         self._config = config
         self._joint_names = names
         self._lower = lower
@@ -386,7 +368,7 @@ class CommandGate(LeafSystem):
     def SetHoldPosition(self, context, q_rad) -> None:
         """Makes this context hold ``q_rad`` from its current time (see
         :meth:`CommandInterpolator.SetHoldPosition`)."""
-        q = _validated_vector("q_rad", q_rad, self.num_joints)
+        q = check_joint_vector("q_rad", q_rad, self._joint_names)
         reason = command_violation(q, self._lower, self._upper, self._joint_names)
         if reason is not None:
             raise ValueError(f"SetHoldPosition: {reason}")

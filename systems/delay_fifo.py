@@ -22,6 +22,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
+from telesmooth.arms.joint_vectors import check_finite_per_joint
 from telesmooth.safety.limiter import HISTORY_LENGTH
 from telesmooth.safety.state_codec import VectorCodec
 from telesmooth.safety.stop import StopOutcome, StopParams, plan_stop
@@ -238,16 +239,8 @@ class DelayFifo(LeafSystem):
         self._config = config
         self._num_joints = int(num_joints)
         self._lag = config.lag
-        q0 = np.zeros(num_joints) if initial_position_rad is None else np.asarray(
-            initial_position_rad, dtype=float)
-        if q0.shape != (num_joints,):
-            raise ValueError(
-                f"initial_position_rad = {initial_position_rad!r} must have {num_joints} values"
-            )
-        for joint, value in enumerate(q0):
-            if not np.isfinite(value):
-                raise ValueError(
-                    f"initial_position_rad[{joint}] = {float(value)!r} must be finite")
+        q0 = np.zeros(num_joints) if initial_position_rad is None else check_finite_per_joint(
+            "initial_position_rad", initial_position_rad, self._num_joints)
         n, lag = self._num_joints, self._lag
         self._planner = None
         if config.on_collision == "stop":

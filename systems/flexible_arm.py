@@ -38,6 +38,7 @@ from telesmooth.arms.description import (
     with_drive,
 )
 from telesmooth.arms.drake_models import add_arm
+from telesmooth.arms.joint_vectors import as_per_joint, check_joint_vector
 from telesmooth.systems.command_interpolator import (
     CommandInterpolator,
     CommandInterpolatorConfig,
@@ -99,8 +100,6 @@ class DriveConfig:
             ValueError: naming the field (``drive.<field>``), the joint and the value, if a
                 value is not a positive finite number or the joint count does not match.
         """
-        from telesmooth.arms.joint_vectors import as_per_joint
-
         arm = drive_preset(arm, self.preset)
         values = {}
         for field in DRIVE_FIELDS:
@@ -184,19 +183,10 @@ class FlexibleArmConfig:
                 f"FlexibleArmConfig.drive = {self.drive!r} must be a DriveConfig")
         if self.initial_position_rad is not None:
             arm = ARMS[self.arm]
-            q0 = _float_tuple("FlexibleArmConfig.initial_position_rad",
-                              self.initial_position_rad)
-            if len(q0) != arm.num_joints:
-                raise ValueError(
-                    f"FlexibleArmConfig.initial_position_rad = {self.initial_position_rad!r} "
-                    f"must have {arm.num_joints} values (joints {arm.joint_names})")
-            for index, (value, joint) in enumerate(zip(q0, arm.joints)):
-                if not joint.lower_rad <= value <= joint.upper_rad:
-                    raise ValueError(
-                        f"FlexibleArmConfig.initial_position_rad[{index}] ({joint.name}) = "
-                        f"{value!r} is outside the joint limits "
-                        f"[{joint.lower_rad!r}, {joint.upper_rad!r}]")
-            object.__setattr__(self, "initial_position_rad", q0)
+            q0 = check_joint_vector("FlexibleArmConfig.initial_position_rad",
+                                    self.initial_position_rad, arm.joint_names,
+                                    lower=arm.joint_lower_rad, upper=arm.joint_upper_rad)
+            object.__setattr__(self, "initial_position_rad", tuple(q0.tolist()))
 
     @property
     def arm_description(self) -> ArmDescription:

@@ -34,6 +34,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
+from telesmooth.arms.joint_vectors import check_joint_vector
 from telesmooth.lcm_types import decode_exact, lcmt_teleop_joint_command
 from telesmooth.link.auth import check_key, verify
 from telesmooth.link.session import EPOCH_BITS, classify_session
@@ -236,19 +237,10 @@ class JointCommandReceiver(LeafSystem):
         """
         super().__init__()
         self._joint_names = tuple(str(name) for name in joint_names)
-        n = len(self._joint_names)
-        self._lower = np.asarray(lower_rad, dtype=float)
-        self._upper = np.asarray(upper_rad, dtype=float)
-        q0 = np.asarray(initial_position_rad, dtype=float)
-        for field, array in (("lower_rad", self._lower), ("upper_rad", self._upper),
-                             ("initial_position_rad", q0)):
-            if array.shape != (n,):
-                raise ValueError(f"{field} = {array.tolist()!r} must have {n} values")
-        for name, value, lo, hi in zip(self._joint_names, q0, self._lower, self._upper):
-            if not (np.isfinite(value) and lo <= value <= hi):
-                raise ValueError(
-                    f"initial_position_rad[{name!r}] = {float(value)!r} must be finite and "
-                    f"within [{lo!r}, {hi!r}]")
+        self._lower = check_joint_vector("lower_rad", lower_rad, self._joint_names)
+        self._upper = check_joint_vector("upper_rad", upper_rad, self._joint_names)
+        q0 = check_joint_vector("initial_position_rad", initial_position_rad,
+                                self._joint_names, lower=self._lower, upper=self._upper)
         if config.authentication == "required":
             if uplink_key is None:
                 raise ValueError(

@@ -13,6 +13,7 @@ import dataclasses
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
+from telesmooth.arms.joint_vectors import check_finite_per_joint
 from telesmooth.systems.timing import check_period, samples_per_period
 
 __all__ = ["PeriodMean", "PeriodMeanConfig"]
@@ -69,11 +70,8 @@ class PeriodMean(LeafSystem):
         if not isinstance(num_joints, (int, np.integer)) or num_joints < 1:
             raise ValueError(f"num_joints = {num_joints!r} must be a positive integer")
         n, m = int(num_joints), config.num_samples
-        q0 = np.zeros(n) if initial_position_rad is None else np.asarray(
-            initial_position_rad, dtype=float)
-        if q0.shape != (n,) or not np.all(np.isfinite(q0)):
-            raise ValueError(
-                f"initial_position_rad = {initial_position_rad!r} must be {n} finite values")
+        q0 = np.zeros(n) if initial_position_rad is None else check_finite_per_joint(
+            "initial_position_rad", initial_position_rad, n)
         self._num_joints, self._num_samples = n, m
         self._q_target_input = self.DeclareVectorInputPort("q_target", n)
         self._ring_state = self.DeclareDiscreteState(np.tile(q0, m))

@@ -16,7 +16,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
-from telesmooth.arms.joint_vectors import as_per_joint
+from telesmooth.arms.joint_vectors import as_per_joint, check_joint_vector
 from telesmooth.safety.limiter import limiter_params, limiter_rest_state, limiter_step
 from telesmooth.safety.state_codec import VectorCodec
 from telesmooth.smoothing.kalman import START_PRIORS
@@ -184,17 +184,8 @@ class ReducedQSmoother(LeafSystem):
             joint_names=joint_names,
         )
         self._packer = OnlineCksStateVector(self._online)
-        q0 = np.zeros(n) if initial_position_rad is None else np.asarray(
-            initial_position_rad, dtype=float)
-        if q0.shape != (n,):
-            raise ValueError(
-                f"initial_position_rad = {initial_position_rad!r} must have {n} values "
-                f"({joint_names})"
-            )
-        for name, value in zip(joint_names, q0):
-            if not np.isfinite(value):
-                raise ValueError(
-                    f"initial_position_rad[{name!r}] = {float(value)!r} must be finite")
+        q0 = np.zeros(n) if initial_position_rad is None else check_joint_vector(
+            "initial_position_rad", initial_position_rad, joint_names)
         initial = self._online.initial_state(q0, sigma0)
         lag = config.lag
         # online-hard: the limits (immutable) here, the limiter's state in the Context.

@@ -12,6 +12,7 @@ import dataclasses
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
+from telesmooth.arms.joint_vectors import check_finite_per_joint
 from telesmooth.systems.timing import check_period
 
 __all__ = ["Uplink", "UplinkConfig"]
@@ -82,15 +83,8 @@ class Uplink(LeafSystem):
         if not isinstance(num_joints, (int, np.integer)) or num_joints < 1:
             raise ValueError(f"num_joints = {num_joints!r} must be a positive integer")
         n = int(num_joints)
-        q0 = np.zeros(n) if initial_position_rad is None else np.asarray(
-            initial_position_rad, dtype=float)
-        if q0.shape != (n,):
-            raise ValueError(
-                f"initial_position_rad = {initial_position_rad!r} must have {n} values")
-        for joint, value in enumerate(q0):
-            if not np.isfinite(value):
-                raise ValueError(
-                    f"initial_position_rad[{joint}] = {float(value)!r} must be finite")
+        q0 = np.zeros(n) if initial_position_rad is None else check_finite_per_joint(
+            "initial_position_rad", initial_position_rad, n)
         self._config = config
         self._num_joints = n
         self._q_smoothed_input = self.DeclareVectorInputPort("q_smoothed", n)

@@ -269,9 +269,10 @@ def test_space_arm_wrist_poses_clear_the_default_margin():
 
 
 def test_query_rejects_non_finite_and_wrong_size(planar_model):
-    with pytest.raises(ValueError, match=r"q_rad\[1\] \(joint 'elbow'\) = nan must be finite"):
+    with pytest.raises(ValueError,
+                       match=r"q_rad\[1\] = nan for joint 1 \('elbow'\) must be finite"):
         planar_model.query([0.0, np.nan, 0.0])
-    with pytest.raises(ValueError, match=r"q_rad\[2\] \(joint 'wrist'\) = inf"):
+    with pytest.raises(ValueError, match=r"q_rad\[2\] = inf for joint 2 \('wrist'\)"):
         planar_model.query([0.0, 0.0, np.inf])
     with pytest.raises(ValueError, match=r"shape \(2,\); expected \(3,\)"):
         planar_model.query([0.0, 0.0])

@@ -341,12 +341,15 @@ def test_config_errors_name_field_and_value(kwargs, match):
 
 @pytest.mark.parametrize("kwargs,match", [
     ({"initial_position_rad": [0.0, 2.5]},
-     r"initial_position_rad\[1\] \(elbow\) = 2.5 is outside the joint limits \[-2.0, 2.0\]"),
-    ({"initial_position_rad": [np.nan, 0.0]}, r"initial_position_rad\[0\] = nan must be finite"),
-    ({"initial_position_rad": [0.0]}, r"initial_position_rad = \[0.0\] must have 2 values"),
+     r"initial_position_rad\[1\] = 2.5 for joint 1 \('elbow'\) must be finite and within "
+     r"\[-2.0, 2.0\] rad"),
+    ({"initial_position_rad": [np.nan, 0.0]},
+     r"initial_position_rad\[0\] = nan for joint 0 \('shoulder'\) must be finite"),
+    ({"initial_position_rad": [0.0]},
+     r"initial_position_rad = \[0.0\] has shape \(1,\); expected \(2,\)"),
     ({"lower_rad": [1.0, -2.0]},
-     r"lower_rad\[0\] \(shoulder\) = 1.0 must be below upper_rad\[0\] = 1.0"),
-    ({"upper_rad": [1.0, np.inf]}, r"upper_rad\[1\] = inf must be finite"),
+     r"lower_rad\[0\] = 1.0 for joint 0 \('shoulder'\) must be < upper_rad\[0\] = 1.0"),
+    ({"upper_rad": [1.0, np.inf]}, r"upper_rad\[1\] = inf for joint 1 \('elbow'\) must be finite"),
     ({"joint_names": ("a", "a")}, r"joint_names = \('a', 'a'\) must be unique"),
     ({"joint_names": ()}, r"joint_names = \(\) must be a non-empty"),
 ])

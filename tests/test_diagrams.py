@@ -124,7 +124,8 @@ def test_lcm_split_sends_the_same_commands_as_the_single_process(tmp_path):
     ("{smoother: {colour: red}}", r"smoother: unknown key\(s\) \['colour'\]"),
     ("{haptic: {source: file}}", r"haptic.file must name"),
     ("{uplink: {period_s: 0.5}}", r"share one period"),
-    ("{initial_position_rad: [0.0, 0.0, 9.0]}", r"initial_position_rad\['wrist'\] = 9.0"),
+    ("{initial_position_rad: [0.0, 0.0, 9.0]}",
+     r"initial_position_rad\[2\] = 9.0 for joint 2 \('wrist'\) must be finite and within"),
     ("{settle_s: yes}", r"with scenario_text: settle_s = True must be a number"),
     ("{haptic: {period_s: -100}}", r"haptic.period_s = -100.0 must be positive"),
     ("{haptic: {lasa_shape: Sshap}}", r"haptic.lasa_shape = 'Sshap' is not one of the 30 "

@@ -110,7 +110,8 @@ def test_validation_messages():
         FixedLagSmoother(model, lag=-1)
     dut = FixedLagSmoother(model)
     state = dut.initial_state([0.0, 0.0])
-    with pytest.raises(ValueError, match="measurement must be 2 finite values"):
+    with pytest.raises(ValueError, match=r"^measurement\[1\] = inf for joint 1 must be finite$"):
         dut.step(state, [0.0, np.inf])
-    with pytest.raises(ValueError, match="start_position must be 2 finite values"):
+    with pytest.raises(ValueError, match=r"^start_position = \[0.0\] has shape \(1,\); "
+                                         r"expected \(2,\), one per joint$"):
         dut.initial_state([0.0])

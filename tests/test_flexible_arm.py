@@ -257,11 +257,14 @@ def test_default_config_is_valid_and_builds():
     ({"gravity_m_per_s2": (0.0, 0.0, float("inf"))},
      r"FlexibleArmConfig.gravity_m_per_s2\[2\] = inf must be finite"),
     ({"initial_position_rad": (0.0, 0.0)},
-     r"initial_position_rad = \(0.0, 0.0\) must have 3 values"),
+     r"^FlexibleArmConfig.initial_position_rad = \(0.0, 0.0\) has shape \(2,\); expected "
+     r"\(3,\), one per joint of \('shoulder', 'elbow', 'wrist'\)$"),
     ({"initial_position_rad": (0.0, 3.2, 0.0)},
-     r"initial_position_rad\[1\] \(elbow\) = 3.2 is outside the joint limits"),
+     r"^FlexibleArmConfig.initial_position_rad\[1\] = 3.2 for joint 1 \('elbow'\) must be "
+     r"finite and within \[-\d.*, \d.*\] rad$"),
     ({"initial_position_rad": (float("nan"), 0.0, 0.0)},
-     r"FlexibleArmConfig.initial_position_rad\[0\] = nan must be finite"),
+     r"^FlexibleArmConfig.initial_position_rad\[0\] = nan for joint 0 \('shoulder'\) must be "
+     r"finite"),
     ({"tracker": {"period_s": 0.01}}, r"FlexibleArmConfig.tracker = .* must be a"),
 ])
 def test_config_errors_name_field_and_value(kwargs, match):

@@ -148,7 +148,7 @@ def test_a_prefix_that_breaks_a_limit_has_no_continuation():
     (dict(start=2.0), r"start = 2.0 must be an integer"),
     (dict(dt_s=0.0), r"dt_s = 0.0 must be a positive"),
     (dict(max_jerk=-1.0), r"max_jerk_rad_per_s3"),
-    (dict(rest=[0.0, float("nan")]), r"rest\[1\] = nan for joint 1 must be finite"),
+    (dict(rest=[0.0, float("nan")]), r"rest\[1\] = nan for joint 1 must be finite$"),
 ])
 def test_bad_input_names_the_field(change, message):
     z, commands = _stream(seed=2)

@@ -338,12 +338,13 @@ def test_state_vector_round_trip_is_exact(method, variant):
     (lambda: PeriodMeanConfig(window_s=0.255), r"window_s = 0.255 is not a whole number"),
     (lambda: DelayFifo(num_joints=0), r"num_joints = 0"),
     (lambda: DelayFifo(num_joints=2, initial_position_rad=[0.0, np.inf]),
-     r"initial_position_rad\[1\] = inf"),
+     r"initial_position_rad\[1\] = inf for joint 1 must be finite"),
     (lambda: ReducedQSmoother(joint_names=JOINTS, initial_position_rad=[0.0, np.nan]),
-     r"initial_position_rad\['elbow'\] = nan"),
+     r"initial_position_rad\[1\] = nan for joint 1 \('elbow'\) must be finite"),
     (lambda: ReducedQSmoother(ReducedQSmootherConfig(max_jerk_rad_per_s3=(0.1, -1.0)),
                               joint_names=JOINTS), r"elbow"),
-    (lambda: Uplink(num_joints=2, initial_position_rad=[0.0]), r"must have 2 values"),
+    (lambda: Uplink(num_joints=2, initial_position_rad=[0.0]),
+     r"initial_position_rad = \[0.0\] has shape \(1,\); expected \(2,\), one per joint$"),
 ])
 def test_bad_configuration_is_rejected_with_a_clear_message(factory, match):
     with pytest.raises(ValueError, match=match):

@@ -128,10 +128,11 @@ def test_config_validation_names_field_and_value(field, value, match):
 def test_constructor_validation_names_joint_and_value():
     with pytest.raises(ValueError, match=r"has shape \(2,\); expected \(3,\)"):
         InverseKinematicsSystem(arm=AIR_BEARING_ARM_3DOF, initial_position_rad=[0.0, 0.0])
-    with pytest.raises(ValueError, match=r"initial_position_rad\[1\] \(joint 'elbow'\) = nan"):
+    with pytest.raises(ValueError,
+                       match=r"initial_position_rad\[1\] = nan for joint 1 \('elbow'\)"):
         InverseKinematicsSystem(arm=AIR_BEARING_ARM_3DOF, initial_position_rad=[0, np.nan, 0])
-    with pytest.raises(ValueError, match=r"initial_position_rad\[5\] \(joint 'wrist_roll'\) = "
-                                         r"3.1 must be finite and within"):
+    with pytest.raises(ValueError, match=r"initial_position_rad\[5\] = 3.1 for joint 5 "
+                                         r"\('wrist_roll'\) must be finite and within"):
         InverseKinematicsSystem(arm=SPACE_ARM_6DOF, initial_position_rad=[0, 0, 0, 0, 0, 3.1])
     two_joints = dataclasses.replace(
         AIR_BEARING_ARM_3DOF, joints=AIR_BEARING_ARM_3DOF.joints[:2],
@@ -286,7 +287,8 @@ def test_pose_vector_round_trip():
 
 
 def test_solver_validation(kinematics):
-    with pytest.raises(ValueError, match=r"q_seed\[2\] \(joint 'elbow_pitch'\) = 3.0 must be"):
+    with pytest.raises(ValueError,
+                       match=r"q_seed\[2\] = 3.0 for joint 2 \('elbow_pitch'\) must be"):
         solve_space_arm_ik(kinematics, np.zeros(6), [0, 0, 3.0, 0, 0, 0])
     with pytest.raises(ValueError, match=r"position_tolerance_m = 0.0 must be positive"):
         solve_space_arm_ik(kinematics, np.zeros(6), np.zeros(6), position_tolerance_m=0.0)

@@ -119,7 +119,8 @@ def test_receiver_rejects_unsafe_packets_and_holds():
 
 
 def test_receiver_constructor_errors_name_joint_and_value():
-    with pytest.raises(ValueError, match=r"initial_position_rad\['elbow'\] = 3.0"):
+    with pytest.raises(ValueError, match=r"initial_position_rad\[1\] = 3.0 for joint 1 "
+                                         r"\('elbow'\) must be finite and within"):
         JointCommandReceiver(joint_names=JOINTS, lower_rad=LOWER, upper_rad=UPPER,
                              initial_position_rad=[0.0, 3.0])
     with pytest.raises(ValueError, match=r"timeout_s = -1"):

@@ -297,8 +297,10 @@ def test_reset_returns_to_rest():
     assert dut.current_position.tolist() == [0.7]
     assert dut.current_velocity.tolist() == [0.0] and dut.current_acceleration.tolist() == [0.0]
     assert dut.sent_history.tolist() == [[0.7]] * 4 and dut.ticks == 0
-    with pytest.raises(ValueError, match=r"must have shape \(1,\)"):
+    with pytest.raises(ValueError, match=r"^q = \[0.1, 0.2\] has shape \(2,\); expected \(1,\)"):
         dut.reset([0.1, 0.2])
+    with pytest.raises(ValueError, match=r"^q\[0\] = nan for joint 0 must be finite$"):
+        dut.reset([np.nan])
 
 
 @pytest.mark.parametrize("kwargs, message", [
