@@ -121,22 +121,24 @@ class PlanarArm:
             length = self.link_lengths_m[i]
             if not (math.isfinite(length) and length > 0.0):
                 raise ValueError(
-                    f"link_lengths_m[{i}] (joint {name!r}) = {length!r} "
+                    f"link_lengths_m[{i}] = {length!r} for joint {i} ({name!r}) "
                     "must be positive and finite"
                 )
             lower = self.joint_lower_rad[i]
             upper = self.joint_upper_rad[i]
             if math.isnan(lower) or lower == math.inf:
                 raise ValueError(
-                    f"joint_lower_rad[{i}] (joint {name!r}) = {lower!r} must be finite or -inf"
+                    f"joint_lower_rad[{i}] = {lower!r} for joint {i} ({name!r}) "
+                    "must be finite or -inf"
                 )
             if math.isnan(upper) or upper == -math.inf:
                 raise ValueError(
-                    f"joint_upper_rad[{i}] (joint {name!r}) = {upper!r} must be finite or +inf"
+                    f"joint_upper_rad[{i}] = {upper!r} for joint {i} ({name!r}) "
+                    "must be finite or +inf"
                 )
             if not lower < upper:
                 raise ValueError(
-                    f"joint_lower_rad[{i}] (joint {name!r}) = {lower!r} must be below "
+                    f"joint_lower_rad[{i}] = {lower!r} for joint {i} ({name!r}) must be below "
                     f"joint_upper_rad[{i}] = {upper!r}"
                 )
 

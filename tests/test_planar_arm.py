@@ -258,31 +258,33 @@ def _arm(**overrides):
     [
         (
             {"link_lengths_m": (0.5, -0.4, 0.2)},
-            r"link_lengths_m\[1\] \(joint 'elbow'\) = -0.4 must be positive",
+            r"link_lengths_m\[1\] = -0.4 for joint 1 \('elbow'\) must be positive",
         ),
         (
             {"link_lengths_m": (0.5, 0.4, 0.0)},
-            r"link_lengths_m\[2\] \(joint 'wrist'\) = 0.0 must be positive",
+            r"link_lengths_m\[2\] = 0.0 for joint 2 \('wrist'\) must be positive",
         ),
         (
             {"link_lengths_m": (math.inf, 0.4, 0.2)},
-            r"link_lengths_m\[0\] \(joint 'shoulder'\) = inf must be positive",
+            r"link_lengths_m\[0\] = inf for joint 0 \('shoulder'\) must be positive",
         ),
         (
             {"link_lengths_m": (0.5, math.nan, 0.2)},
-            r"link_lengths_m\[1\] \(joint 'elbow'\) = nan must be positive",
+            r"link_lengths_m\[1\] = nan for joint 1 \('elbow'\) must be positive",
         ),
         (
             {"joint_lower_rad": (-1.0, 1.5, -1.0)},
-            r"joint_lower_rad\[1\] \(joint 'elbow'\) = 1.5 "
+            r"joint_lower_rad\[1\] = 1.5 for joint 1 \('elbow'\) "
             r"must be below joint_upper_rad\[1\] = 1.0",
         ),
         (
             {"joint_upper_rad": (1.0, 1.0, -1.0)},
-            r"joint_lower_rad\[2\] \(joint 'wrist'\) = -1.0 must be below",
+            r"joint_lower_rad\[2\] = -1.0 for joint 2 \('wrist'\) must be below",
         ),
-        ({"joint_lower_rad": (math.nan, -1.0, -1.0)}, r"joint_lower_rad\[0\] .* = nan"),
-        ({"joint_upper_rad": (1.0, -math.inf, 1.0)}, r"joint_upper_rad\[1\] .* = -inf"),
+        ({"joint_lower_rad": (math.nan, -1.0, -1.0)},
+         r"joint_lower_rad\[0\] = nan for joint 0 \('shoulder'\) must be finite or -inf"),
+        ({"joint_upper_rad": (1.0, -math.inf, 1.0)},
+         r"joint_upper_rad\[1\] = -inf for joint 1 \('elbow'\) must be finite or \+inf"),
         ({"joint_names": ("shoulder", "elbow")}, "joint_names = .* has 2 entries"),
         ({"joint_lower_rad": (-1.0,) * 4}, "joint_lower_rad = .* has 4 entries"),
         ({"joint_names": ("a", "b", "a")}, r"joint_names\[2\] = 'a' repeats"),
