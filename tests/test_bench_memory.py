@@ -1,0 +1,32 @@
+"""The bench's peak-memory figure (``peak_above_baseline_mb`` of every row) against a known
+allocation: a row that fills a 256 MiB array reports about 256 MB, a row that allocates nothing
+reports almost nothing."""
+
+import numpy as np
+
+from telesmooth.scripts.bench_core import in_fresh_process
+
+ALLOCATED_MB = 256
+
+
+def _fill(megabytes: int) -> dict:
+    block = np.ones(megabytes * 2**20 // 8)      # every page written, so it is resident
+    return {"sum": float(block.sum())}
+
+
+def _nothing() -> dict:
+    return {"sum": 0.0}
+
+
+def test_a_row_that_fills_an_array_reports_its_size():
+    row = in_fresh_process(_fill, ALLOCATED_MB)
+    assert row["sum"] == ALLOCATED_MB * 2**20 // 8
+    # The array (less what the interpreter may have returned to the system since the baseline
+    # was read), plus a few MB of interpreter and allocator overhead at most.
+    assert 0.9 * ALLOCATED_MB <= row["peak_above_baseline_mb"] <= ALLOCATED_MB + 32
+
+
+def test_a_row_that_allocates_nothing_reports_almost_nothing():
+    row = in_fresh_process(_nothing)
+    assert row["peak_above_baseline_mb"] <= 16
+    assert row["peak_rss_mb"] >= row["baseline_rss_mb"] > 0
