@@ -134,6 +134,32 @@ def test_a_problem_that_needs_85_newton_steps_converges():
     assert capped.status[0] == "max_iterations"      # the case still needs more than 80
 
 
+def test_a_lasa_demonstration_that_needs_258_newton_steps_converges():
+    """Found by the full experiment: BendedLine/1 at 4× the demonstrator's speed on the lab
+    plant (110 samples at 4 Hz); its wrist needs 258 Newton steps, and the former cap of 200
+    reported offline-hard as failed on it (and on 15 more demonstrations)."""
+    from telesmooth.scripts.bench_core import _experiment_scenario
+    from telesmooth.studies.comparison import operator_samples, prepare_comparison
+    from telesmooth.studies.experiment import ExperimentConfig, experiment_scenario
+
+    base = _experiment_scenario("BendedLine", 1, None)
+    scenario = experiment_scenario(base, ExperimentConfig(), "BendedLine", 1, 0, plant="lab",
+                                   speed=4.0)
+    setup = prepare_comparison(scenario, operator_samples(scenario))
+    z, a_max, j_max = setup.q_original, setup.max_acceleration, setup.max_jerk
+    result = solve_offline_hard(z, setup.period_s, max_acceleration=a_max, max_jerk=j_max,
+                                start_position=z[0], rest_at_end=True)
+    assert result.status == ("converged",) * 3
+    received = with_rest_history(result.positions, z[0])
+    for order, limit in ((2, a_max), (3, j_max)):
+        fd = np.abs(finite_differences(received, setup.period_s, order))
+        assert np.all(fd <= np.asarray(limit) * (1 + 1e-9))
+    capped = solve_offline_hard(z, setup.period_s, max_acceleration=a_max, max_jerk=j_max,
+                                start_position=z[0], rest_at_end=True,
+                                options=BandedIpOptions(max_iterations=200))
+    assert "max_iterations" in capped.status      # the case still needs more than 200
+
+
 def test_the_method_sends_the_optimum_with_its_finite_difference_states():
     z = operator_recording(num_samples=40, num_joints=2, seed=2, noise=2e-3)
     run = smooth_recording(z, DT, "offline-hard",
