@@ -29,6 +29,7 @@ from telesmooth.user_input import quote
 __all__ = [
     "as_per_joint",
     "check_finite_per_joint",
+    "check_joint_limits",
     "check_joint_vector",
     "check_positive_int",
     "check_positive_scalar",
@@ -102,6 +103,26 @@ def check_joint_vector(field: str, value, joint_names: Sequence[str], *, lower=N
                 f"and within [{float(lower[i])!r}, {float(upper[i])!r}] rad"
             )
     return q
+
+
+def check_joint_limits(lower_rad, upper_rad, joint_names: Sequence[str]
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """``lower_rad`` and ``upper_rad`` as finite joint vectors (:func:`check_joint_vector`)
+    with lower < upper on every joint; the messages name the fields ``lower_rad`` and
+    ``upper_rad``, the joint and both values.
+
+    Returns:
+        (lower, upper), new float arrays of shape (n,).
+    """
+    names = tuple(joint_names)
+    lower = check_joint_vector("lower_rad", lower_rad, names)
+    upper = check_joint_vector("upper_rad", upper_rad, names)
+    for i in range(len(names)):
+        if not lower[i] < upper[i]:
+            raise ValueError(
+                f"lower_rad[{i}] = {float(lower[i])!r} for {_joint_label(i, names)} must be "
+                f"< upper_rad[{i}] = {float(upper[i])!r}")
+    return lower, upper
 
 
 def _joint_array(field: str, value, num_joints: int,

@@ -70,7 +70,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from telesmooth.arms.joint_vectors import _joint_label, as_per_joint, check_joint_vector
+from telesmooth.arms.joint_vectors import (
+    as_per_joint,
+    check_joint_limits,
+    check_joint_vector,
+)
 from telesmooth.safety.limiter import (
     DEFAULT_MARGIN,
     HISTORY_LENGTH,
@@ -314,13 +318,7 @@ def guard_params(config: LinkGuardConfig = LinkGuardConfig(), *, joint_names, lo
         raise ValueError(f"config = {config!r} must be a LinkGuardConfig")
     names = _check_names(joint_names)
     n = len(names)
-    lower = check_joint_vector("lower_rad", lower_rad, names)
-    upper = check_joint_vector("upper_rad", upper_rad, names)
-    for i in range(n):
-        if not lower[i] < upper[i]:
-            raise ValueError(
-                f"lower_rad[{i}] = {float(lower[i])!r} for {_joint_label(i, names)} must be "
-                f"< upper_rad[{i}] = {float(upper[i])!r}")
+    lower, upper = check_joint_limits(lower_rad, upper_rad, names)
     q0 = check_joint_vector("initial_position_rad", initial_position_rad, names, lower=lower,
                             upper=upper)
     for array in (lower, upper, q0):

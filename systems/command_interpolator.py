@@ -31,7 +31,7 @@ from pydrake.symbolic import min as symbolic_min
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import SymbolicVectorSystem
 
-from telesmooth.arms.joint_vectors import _joint_label, check_joint_vector
+from telesmooth.arms.joint_vectors import check_joint_limits, check_joint_vector
 from telesmooth.systems.timing import check_period
 
 __all__ = [
@@ -295,15 +295,7 @@ class CommandGate(LeafSystem):
         if len(set(names)) != len(names):
             raise ValueError(f"joint_names = {joint_names!r} must be unique")
         n = len(names)
-        lower = check_joint_vector("lower_rad", lower_rad, names)
-        upper = check_joint_vector("upper_rad", upper_rad, names)
-        for index in range(n):
-            if not lower[index] < upper[index]:
-                raise ValueError(
-                    f"lower_rad[{index}] = {float(lower[index])!r} for "
-                    f"{_joint_label(index, names)} must be < upper_rad[{index}] = "
-                    f"{float(upper[index])!r}"
-                )
+        lower, upper = check_joint_limits(lower_rad, upper_rad, names)
         q0 = check_joint_vector(
             "initial_position_rad", np.zeros(n) if initial_position_rad is None
             else initial_position_rad, names, lower=lower, upper=upper)
