@@ -68,6 +68,10 @@ _CHUNK_ROWS = 1 << 15
 # Rows per chunk of _gram_band (each row of A pairs up to 36 entries: 1 << 13 rows keep its
 # temporaries near 10 MB).
 _GRAM_CHUNK_ROWS = 1 << 13
+# A Newton step is refined while its stationarity residual exceeds this share of the dual
+# residual it corrects, at most this many times (``BandedQp._refine``).
+_REFINEMENT_RATIO = 1e-2
+_MAX_REFINEMENTS = 3
 # Relative round-off allowed in a limit row's value F y (see ``run``).
 _PRIMAL_ROUND_OFF = 1e-13
 
@@ -94,18 +98,19 @@ class BandedIpOptions:
         dual_tolerance: ‖∇ Lagrangian‖∞ relative to the size of its terms (round-off leaves
             ~1e-9 at 4 Hz, docs/method.md §2.3 notes, in the absolute gradient; this relative
             measure reaches 1e-10).
-        max_iterations: Newton steps before giving up (1000: most problems converge in
-            20–60; an offline-hard problem of 40 samples found by a property test needed 85,
-            where the former cap of 80 reported a failure, and 16 of the 210 LASA
-            demonstrations at 4× the hand's speed needed more than 200, e.g. BendedLine/1's
-            wrist 258; why they need so many is not yet understood).
+        max_iterations: Newton steps before giving up (200). Most problems converge in
+            12–60. Before the Newton steps were refined (``BandedQp._refine``) some took
+            hundreds or never converged: 16 of the offline-hard problems of the 210 LASA
+            demonstrations at 4× the hand's speed needed more than 200 steps (BendedLine/1's
+            wrist 258) and BendedLine/2's shoulder did not converge in 1000; refined, each of
+            the 16 converges in 12–20 steps.
         linear_solver: "auto", "cholesky" or "qr" (module docstring).
     """
 
     primal_tolerance: float = 1e-10
     gap_tolerance: float = 1e-15
     dual_tolerance: float = 1e-10
-    max_iterations: int = 1000
+    max_iterations: int = 200
     linear_solver: str = "auto"
 
     def __post_init__(self) -> None:
@@ -536,6 +541,16 @@ class BandedQp:
                     if best_acceptable is None or gap < best_acceptable[-1][1]:
                         best_acceptable = (y, s_u, s_l, lam_u, lam_l, iteration - 1, measures)
             weights = lam_u / s_u + lam_l / s_l
+            # A Newton step solves its stationarity equation to about ε‖M‖‖Δy‖, M = AᵀA +
+            # FᵀDF (measured on the offline-hard problems: 0.01–1.7 × this estimate): it is
+            # refined (``_refine``) once that can reach 1 % of the dual residual it corrects
+            # and that residual's round-off floor. Checking every step instead would cost
+            # three more products (~20 % of the time at N = 10⁴); early steps' errors are
+            # ~1e-9 of r_d.
+            step_error_scale = np.finfo(float).eps * (
+                self._norms[0] + float(np.max(self._f_squared_t @ weights)))
+            refine_above = max(_REFINEMENT_RATIO * float(np.max(np.abs(r_d))),
+                               self._dual_round_off(y, lam_u + lam_l))
             # Within 10× of the gap tolerance (``acceptable``): if the normal equations break
             # down now (λ/s of the active rows ~1e15), stop here rather than finish by the QR
             # route (a Python loop over the samples: 3.7 s instead of 0.6 s at N = 10⁴).
@@ -563,7 +578,10 @@ class BandedQp:
                     ds_l = -r_pl + dfy
                     dl_u = -(rc_u + lam_u * ds_u) / s_u
                     dl_l = -(rc_l + lam_l * ds_l) / s_l
-                    return dy, ds_u, ds_l, dl_u, dl_l
+                    if step_error_scale * float(np.max(np.abs(dy))) <= refine_above:
+                        return dy, ds_u, ds_l, dl_u, dl_l
+                    return self._refine(solve, (dy, ds_u, ds_l, dl_u, dl_l), residual_a,
+                                        refine_above, lam_u - lam_l, (lam_u / s_u, lam_l / s_l))
 
                 # Predictor (affine scaling).
                 step = newton(s_u * lam_u, s_l * lam_l)
@@ -615,6 +633,50 @@ class BandedQp:
             gap=float(measures[1]), dual_residual=float(measures[2]),
             multipliers=lam_u - lam_l)
 
+    def _refine(self, solve, step, residual_a, target, multipliers, ratios):
+        """Iterative refinement of a Newton step on the full system.
+
+        The slack and multiplier parts of a step are recovered from Δy row by row
+        (Δλ = −(r_c + λ Δs) / s), which multiplies the round-off of FΔy by λ/s. Late in the
+        iterations λ/s of the active rows reaches 1e8–1e12 and the step no longer solves the
+        stationarity equation Δy' + Fᵀ(Δλ_u − Δλ_l) = −r_d (Δy' = AᵀAΔy): its residual
+        overtakes r_d itself, the dual residual grows again as the gap collapses, and the
+        method stalls (BendedLine/2 at 4× the hand's speed: the dual measure rose from 1e-11
+        to 1e-8 within three steps, and 1000 steps did not recover it). The residual of that
+        equation is of the form Aᵀr_a + Fᵀr_f, so each route solves the correction with the
+        factor it already has; the slack and multiplier parts follow from the corrected Δy
+        exactly as above. Refined while the residual exceeds ``target`` (1 % of the dual
+        residual) and each correction shrinks it, at most three times.
+        """
+        ratio_u, ratio_l = ratios
+
+        def stationarity(candidate):
+            dy, _, _, dl_u, dl_l = candidate
+            rhs_a = -(residual_a + self.a @ dy)
+            rhs_f = -multipliers - (dl_u - dl_l)
+            at_rhs_a = self.a_t @ rhs_a
+            residual = at_rhs_a + self.f_t @ rhs_f
+            residual[self.fixed] = 0.0
+            return rhs_a, rhs_f, at_rhs_a, float(np.max(np.abs(residual)))
+
+        rhs_a, rhs_f, at_rhs_a, size = stationarity(step)
+        for _ in range(_MAX_REFINEMENTS):
+            if size <= target:
+                break
+            try:
+                correction = solve(rhs_a, rhs_f, at_rhs_a)
+            except LinAlgError:
+                break
+            dy, ds_u, ds_l, dl_u, dl_l = step
+            d_fy = self.f @ correction
+            candidate = (dy + correction, ds_u - d_fy, ds_l + d_fy,
+                         dl_u + ratio_u * d_fy, dl_l - ratio_l * d_fy)
+            rhs_a, rhs_f, at_rhs_a, candidate_size = stationarity(candidate)
+            if not candidate_size < size:
+                break                   # the factor is too inaccurate to refine with
+            step, size = candidate, candidate_size
+        return step
+
     @functools.cached_property
     def normal(self) -> sparse.csr_matrix:
         """AᵀA as a sparse matrix: formed only if a Newton step needs the regularised
@@ -629,6 +691,37 @@ class BandedQp:
         """F y sums terms of size |F||y| (~5e5 for a jerk row at 100 Hz): its round-off,
         ~5e-16 of that, is a floor no iteration can go below."""
         return _PRIMAL_ROUND_OFF * float(np.max(self.abs_f @ np.abs(y)))
+
+    @functools.cached_property
+    def _norms(self):
+        """(max diag AᵀA, ‖A‖₁, ‖A‖∞, ‖c‖∞, ‖F‖₁): column sums of A's squares, absolute
+        column and row sums, chunk by chunk of A's rows (|A| is never stored whole)."""
+        columns = np.zeros(self.n)
+        squares = np.zeros(self.n)
+        rows = 0.0
+        for start in range(0, self.a.shape[0], _CHUNK_ROWS):
+            chunk = abs(self.a[start:start + _CHUNK_ROWS])
+            columns += np.asarray(chunk.sum(axis=0)).ravel()
+            squares += np.asarray(chunk.multiply(chunk).sum(axis=0)).ravel()
+            rows = max(rows, float(np.max(np.asarray(chunk.sum(axis=1)), initial=0.0)))
+        f_columns = np.asarray(self.abs_f.sum(axis=0)).ravel()
+        return (float(np.max(squares[self.free], initial=0.0)),
+                float(np.max(columns, initial=0.0)), rows,
+                float(np.max(np.abs(self.c), initial=0.0)),
+                float(np.max(f_columns, initial=0.0)))
+
+    def _dual_round_off(self, y, lam_sum) -> float:
+        """ε (‖A‖₁(‖A‖∞‖y‖∞ + ‖c‖∞) + ‖F‖₁‖λ_u + λ_l‖∞): a bound on the terms each entry
+        of r_d = Aᵀ(A y − c) + Fᵀ(λ_u − λ_l) sums, times ε, the floor of its round-off
+        (measured r_d at that floor: 0.5× this at N = 10⁴, 4 Hz)."""
+        _, a_cols, a_rows, c_max, f_cols = self._norms
+        return np.finfo(float).eps * (a_cols * (a_rows * float(np.max(np.abs(y))) + c_max)
+                                      + f_cols * float(np.max(lam_sum)))
+
+    @functools.cached_property
+    def _f_squared_t(self) -> sparse.csr_matrix:
+        """(F∘F)ᵀ: diag(FᵀDF) = (F∘F)ᵀ D."""
+        return self.f.multiply(self.f).T.tocsr()
 
     def _dual_measure(self, y, r_d, lam_u, lam_l) -> float:
         """‖r_d‖∞ relative to the size of the terms summed (round-off in Aᵀ(Ay − c) grows
