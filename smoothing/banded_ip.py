@@ -563,7 +563,8 @@ class BandedQp:
                     w_l = (lam_l * r_pl - rc_l) / s_l
                     rhs_f = -(lam_u + w_u) + (lam_l + w_l)
                     try:
-                        dy = solve(-residual_a, rhs_f, -gradient)
+                        solver = solve
+                        dy = solver(-residual_a, rhs_f, -gradient)
                     except LinAlgError:
                         if self.route == "qr" or stop_here:
                             raise   # stop_here: the iterate is accepted below
@@ -572,7 +573,10 @@ class BandedQp:
                         # which shares the factor): the square-root route from here on.
                         if self.route == "cholesky":
                             self._switch_to_qr()
-                        dy = self._solve_qr(weights, -residual_a, rhs_f)
+                        def solver(rhs_a, rhs_f, at_rhs_a=None):
+                            return self._solve_qr(weights, rhs_a, rhs_f)
+
+                        dy = solver(-residual_a, rhs_f)
                     dfy = self.f @ dy
                     ds_u = -r_pu - dfy
                     ds_l = -r_pl + dfy
@@ -580,7 +584,7 @@ class BandedQp:
                     dl_l = -(rc_l + lam_l * ds_l) / s_l
                     if step_error_scale * float(np.max(np.abs(dy))) <= refine_above:
                         return dy, ds_u, ds_l, dl_u, dl_l
-                    return self._refine(solve, (dy, ds_u, ds_l, dl_u, dl_l), residual_a,
+                    return self._refine(solver, (dy, ds_u, ds_l, dl_u, dl_l), residual_a,
                                         refine_above, lam_u - lam_l, (lam_u / s_u, lam_l / s_l))
 
                 # Predictor (affine scaling).
