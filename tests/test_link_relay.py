@@ -185,8 +185,11 @@ def test_seeded_faults_match_the_model_and_the_delay_is_observed(tmp_path):
     report = dut.finish()
 
     assert collections.Counter(seq for seq, _ in uplink) == +predicted
-    seqs = [seq for seq, _ in uplink]
-    assert seqs == sorted(seqs)   # no jitter, duplicate spacing < period: no reordering
+    # No jitter: the originals keep their order. A duplicate follows its original by
+    # duplicate_spacing_s after the relay received it, so it may come after the next packet
+    # when a loaded machine hands the relay two packets within 5 ms (seen: 0, 1, 2, 1, 3).
+    originals = list(dict.fromkeys(seq for seq, _ in uplink))
+    assert originals == sorted(originals)
     assert report["uplink"]["received"] == num_packets
     assert report["uplink"]["lost"] == len(lost)
     assert report["uplink"]["duplicated"] == len(duplicated)

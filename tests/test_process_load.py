@@ -12,9 +12,10 @@ The verdict is judged against the timing the run got, which the test measures ra
 assumes: from the onboard's own log (accepted packets, in its simulation time, the clock the
 guard runs on) every gap longer than the guard's timeout is found; there the guard rightly
 stops, and the ticks until it is back in TRACK are set aside (the re-join itself must take
-at most ``REJOIN_LIMIT_S``). On every other guard tick from 1 s after the first packet to the
-last, the guard must be in TRACK on at least 95 %. The wall-clock arrival of each packet on
-the bus (this test listens) and the onboard's real-time factor are printed with it.
+at most ``REJOIN_LIMIT_S``, counted up to the next such gap when one comes first). On every
+other guard tick from 1 s after the first packet to the last, the guard must be in TRACK on at
+least 95 %. The wall-clock arrival of each packet on the bus (this test listens) and the
+onboard's real-time factor are printed with it.
 """
 
 import json
@@ -109,10 +110,15 @@ def test_the_guard_tracks_on_95_percent_of_its_ticks_with_a_cpu_bound_process_be
     t, mode = ticks[:, 0], ticks[:, 1].astype(int)
     window = (t >= first + 1.0) & (t <= last)
     excused = np.zeros_like(window)
-    for i in gaps:
+    for k, i in enumerate(gaps):
         start, back = received[i], received[i + 1]
         tracking = np.flatnonzero((t > back) & (mode == MODE_TRACK))
         end = t[tracking[0]] if tracking.size else last
+        # A new gap before the guard is back restarts its re-join: this one is judged up to
+        # there (a starved ground, seen in a fresh clone's run beside other heavy processes:
+        # six gaps in 21 s, each stopping the guard again while it closed in).
+        interrupted_at = received[gaps[k + 1]] if k + 1 < len(gaps) else np.inf
+        end = min(end, interrupted_at)
         assert end - back <= REJOIN_LIMIT_S, (start, back, end)
         excused |= (t > start) & (t <= end)
     counted = window & ~excused
