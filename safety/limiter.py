@@ -827,9 +827,12 @@ def _step_compiled(params: LimiterParams, state: LimiterState, r: np.ndarray, fu
     kernel = _kernel()
     history = state.sent.shape[0]
     out = np.empty((history + 5, r.shape[0]))
-    done = kernel.limiter_tick(
-        *params._kernel_arguments, state.position, state.velocity, state.acceleration,
-        state.targets, state.sent, r, _NO_LOOKAHEAD if future is None else future, out)
+    try:
+        done = kernel.limiter_tick(
+            *params._kernel_arguments, state.position, state.velocity, state.acceleration,
+            state.targets, state.sent, r, _NO_LOOKAHEAD if future is None else future, out)
+    except TypeError:           # state arrays of other dimensions or types than the kernel's
+        return None
     if done == kernel.LEFT_TO_ARRAYS:
         return None
     # The new state's arrays are rows of ``out`` (kernel.ROW_…), never written again.

@@ -273,13 +273,19 @@ class OnlineCks:
         smoother = state.smoother
         means, cross = smoother.blocks_scaled, smoother.covariance
         n = means.shape[0]
+        if means.shape != (self.model.num_joints, self.lag + 1, 4):
+            return None         # another smoother's state: the NumPy form reports it
         new_means, new_cross = np.empty(means.shape), np.empty(cross.shape)
         output, triggered = np.empty((n, 4)), np.empty(n, dtype=bool)
         sigma, sent = np.empty(n), np.empty((3, n))
         r, phi, unit_q, scaling, a_max, j_max, sigma_min, delta_sigma = constants
-        if not tick(means, cross, z, state.sigma, r, phi, unit_q, scaling, a_max, j_max,
-                    sigma_min, delta_sigma, state.sent_positions, *scalars, new_means,
-                    new_cross, output, triggered, sigma, sent):
+        try:
+            done = tick(means, cross, z, state.sigma, r, phi, unit_q, scaling, a_max, j_max,
+                        sigma_min, delta_sigma, state.sent_positions, *scalars, new_means,
+                        new_cross, output, triggered, sigma, sent)
+        except TypeError:       # arrays of other dimensions or types than the kernel's
+            return None
+        if not done:
             return None
         new_state = OnlineCksState(
             smoother=FixedLagState(blocks_scaled=new_means, covariance=new_cross,
