@@ -35,7 +35,7 @@ from telesmooth.arms.joint_vectors import (
     check_trajectory,
 )
 from telesmooth.atomic_files import write_text
-from telesmooth.smoothing.fixed_lag import FixedLagSmoother, FixedLagState
+from telesmooth.smoothing.fixed_lag import FixedLagSmoother, FixedLagState, frozen_instance
 from telesmooth.smoothing.model import SCALED_TRANSITION, UNIT_PROCESS_COVARIANCE, JerkModel
 from telesmooth.user_input import MAX_JSON_BYTES, MAX_JSON_DEPTH, quote, read_file_bytes
 
@@ -273,7 +273,7 @@ class OnlineCks:
         smoother = state.smoother
         means, cross = smoother.blocks_scaled, smoother.covariance
         n = means.shape[0]
-        if means.shape != (self.model.num_joints, self.lag + 1, 4):
+        if means.shape != self.smoother._state_shape:
             return None         # another smoother's state: the NumPy form reports it
         new_means, new_cross = np.empty(means.shape), np.empty(cross.shape)
         output, triggered = np.empty((n, 4)), np.empty(n, dtype=bool)
@@ -287,9 +287,10 @@ class OnlineCks:
             return None
         if not done:
             return None
-        new_state = OnlineCksState(
-            smoother=FixedLagState(blocks_scaled=new_means, covariance=new_cross,
-                                   steps=smoother.steps + 1),
+        new_state = frozen_instance(
+            OnlineCksState, smoother=frozen_instance(
+                FixedLagState, blocks_scaled=new_means, covariance=new_cross,
+                steps=smoother.steps + 1),
             sigma=sigma, sent_positions=sent, window=state.window)
         return new_state, output, triggered
 

@@ -138,3 +138,40 @@ def test_a_state_of_another_lag_is_never_read_out_of_bounds():
     state = other.initial_state(np.zeros(3))
     assert compiled._step_compiled(state, np.zeros(3)) is None
     assert compiled.smoother._step_compiled(state.smoother, np.zeros(3), None) is None
+
+
+def test_states_built_on_the_per_tick_path_are_the_dataclasses_own():
+    import dataclasses
+
+    from telesmooth.smoothing.fixed_lag import FixedLagState, frozen_instance
+    from telesmooth.smoothing.reduced_q import OnlineCksState
+
+    values = {"blocks_scaled": np.zeros((2, 4, 4)), "covariance": np.ones((2, 4, 4, 4)),
+              "steps": 3, "smoother": "s", "sigma": np.full(2, 4e-4),
+              "sent_positions": np.zeros((3, 2)), "window": ()}
+    for cls in (FixedLagState, OnlineCksState):
+        assert not hasattr(cls, "__post_init__")
+        names = [f.name for f in dataclasses.fields(cls)]
+        fields = {name: values[name] for name in names}
+        fast, slow = frozen_instance(cls, **fields), cls(**fields)
+        assert type(fast) is cls and vars(fast).keys() == vars(slow).keys()
+        for name in names:
+            assert getattr(fast, name) is getattr(slow, name)
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            setattr(fast, names[0], None)
+
+
+def test_the_compiled_paths_build_every_field():
+    """frozen_instance is given every field on both compiled paths (a field added to the
+    dataclasses later must be added there too)."""
+    import dataclasses
+
+    from telesmooth.smoothing.fixed_lag import FixedLagState
+    from telesmooth.smoothing.reduced_q import OnlineCksState
+
+    compiled, _ = _pair(2, 3, ReducedQConfig())
+    state, _, _ = compiled.step(compiled.initial_state(np.zeros(2)), np.full(2, 0.01))
+    for instance, cls in ((state, OnlineCksState), (state.smoother, FixedLagState)):
+        assert set(vars(instance)) == {f.name for f in dataclasses.fields(cls)}
+    smoother_state = compiled.smoother.step(state.smoother, np.zeros(2))
+    assert set(vars(smoother_state)) == {f.name for f in dataclasses.fields(FixedLagState)}
