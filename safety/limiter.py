@@ -118,6 +118,11 @@ returns the next state and the command p_{k+1} without touching its arguments. I
 (:class:`LimiterOutcome`: ``EXACT`` when the command is the target bit for bit, ``LIMITED``,
 ``BRAKING``) travels in the new state, like Ruckig's result enum. :func:`limiter_rest_state`
 starts at rest, :func:`limiter_moving_state` just after three sent commands.
+
+A tick runs compiled (:mod:`~telesmooth.safety.limiter_kernel`, numba, the same floats bit for
+bit as the array form ``_step_arrays``, which stays the reference and takes the ticks with a
+non-finite target or state); the kernel is compiled, or loaded from numba's cache, when the
+parameters are built.
 :class:`~telesmooth.smoothing.online_hard.OnlineHardLimiter` is a small stateful convenience
 wrapper for scripts; Drake systems keep the state in their Context.
 """
