@@ -118,6 +118,11 @@ returns the next state and the command p_{k+1} without touching its arguments. I
 (:class:`LimiterOutcome`: ``EXACT`` when the command is the target bit for bit, ``LIMITED``,
 ``BRAKING``) travels in the new state, like Ruckig's result enum. :func:`limiter_rest_state`
 starts at rest, :func:`limiter_moving_state` just after three sent commands.
+
+A tick runs compiled (:mod:`~telesmooth.safety.limiter_kernel`, numba, the same floats bit for
+bit as the array form ``_step_arrays``, which stays the reference and takes the ticks with a
+non-finite target or state); the kernel is compiled, or loaded from numba's cache, when the
+parameters are built.
 :class:`~telesmooth.smoothing.online_hard.OnlineHardLimiter` is a small stateful convenience
 wrapper for scripts; Drake systems keep the state in their Context.
 """
@@ -161,7 +166,7 @@ DEFAULT_MARGIN = 1e-9
 HISTORY_LENGTH = 3
 _GRID_POINTS = 65
 _GRID = np.linspace(0.0, 1.0, _GRID_POINTS)
-_GRID_LIST = tuple(_GRID.tolist())
+_GRID.flags.writeable = False
 _HULL_TOLERANCE = 1e-13  # normalised coordinates are O(1)
 _CONVERGENCE_TOLERANCE = 1e-12
 _BAND_TOLERANCE = 1e-9  # relative slack when accepting u_hit inside the braking band
@@ -460,23 +465,32 @@ class LimiterParams:
     inverse_gb: np.ndarray
 
     def __post_init__(self):
-        # Derived once for the per-tick scalar path (limiter_step): per joint, the facet rows
-        # (g_v, g_a) of S (without the padding rows), the rows bounding u from above and from
-        # below as (g_v, g_a, 1/(g·b)), and the internal a_max, j_max, all as Python floats in
-        # immutable tuples. Not a dataclass field: the constructor is unchanged.
-        gv, ga = self.facet_velocity.tolist(), self.facet_acceleration.tolist()
-        inverse = self.inverse_gb.tolist()
-        upper, lower = self.upper_rows.tolist(), self.lower_rows.tolist()
-        a_lim, j_lim = self.acceleration_internal.tolist(), self.jerk_internal.tolist()
-        joints = []
-        for j in range(len(gv)):
-            m = range(len(gv[j]))
-            joints.append((
-                tuple((gv[j][i], ga[j][i]) for i in m if gv[j][i] != 0.0 or ga[j][i] != 0.0),
-                tuple((gv[j][i], ga[j][i], inverse[j][i]) for i in m if upper[j][i]),
-                tuple((gv[j][i], ga[j][i], inverse[j][i]) for i in m if lower[j][i]),
-                a_lim[j], j_lim[j]))
-        object.__setattr__(self, "_joint_rows", tuple(joints))
+        # Derived once for the compiled tick (limiter_step, safety/limiter_kernel.py): per
+        # joint, the facet rows (g_v, g_a, 1/(g·b)) of S in three groups, the rows of S without
+        # the padding rows (for the gauge), the rows bounding u from above (g·b > 0) and from
+        # below (g·b < 0), padded to a common count, with the counts and the internal
+        # (a_max, j_max). Not dataclass fields: the constructor is unchanged. The kernel is
+        # compiled (or loaded from numba's cache) here, once per process, not in a tick.
+        gv, ga, inverse = self.facet_velocity, self.facet_acceleration, self.inverse_gb
+        groups = ((gv != 0.0) | (ga != 0.0), self.upper_rows, self.lower_rows)
+        num_joints, num_rows = gv.shape
+        rows = np.zeros((num_joints, len(groups), num_rows, 3))
+        counts = np.zeros((num_joints, len(groups)), dtype=np.int64)
+        for j in range(num_joints):
+            for g, selected in enumerate(groups):
+                chosen = np.flatnonzero(selected[j])
+                counts[j, g] = len(chosen)
+                rows[j, g, : len(chosen)] = np.stack(
+                    [gv[j, chosen], ga[j, chosen], inverse[j, chosen]], axis=1)
+        limits = np.stack([self.acceleration_internal, self.jerk_internal], axis=1)
+        none_held = np.zeros(num_joints, dtype=bool)
+        for array in (rows, counts, limits, none_held):
+            array.flags.writeable = False
+        # The kernel's leading arguments, and the `held` of every tick it does (no joint).
+        object.__setattr__(self, "_kernel_arguments", (
+            self.dt_s, self.dt_s**2, self.rule != "greedy", _GRID, rows, counts, limits))
+        object.__setattr__(self, "_none_held", none_held)
+        _kernel()
 
     @property
     def num_joints(self) -> int:
@@ -729,7 +743,7 @@ def limiter_step(params: LimiterParams, state: LimiterState, target,
         if future.ndim != 2 or future.shape[1] != n or future.shape[0] < 1:
             raise ValueError(f"lookahead has shape {future.shape}; expected (L, {n}) with "
                              "L ≥ 1")
-    fast = _step_scalar(params, state, r, future)
+    fast = _step_compiled(params, state, r, future)
     if fast is not None:
         return fast
     return _step_arrays(params, state, r, future)
@@ -737,7 +751,7 @@ def limiter_step(params: LimiterParams, state: LimiterState, target,
 
 def _step_arrays(params: LimiterParams, state: LimiterState, r: np.ndarray,
                  future) -> tuple[LimiterState, np.ndarray]:
-    """:func:`limiter_step` on arrays (the reference form; used for the ticks the scalar
+    """:func:`limiter_step` on arrays (the reference form; used for the ticks the compiled
     path leaves to it: non-finite targets, states or results)."""
     dt = params.dt_s
     a_lim, j_lim = params.acceleration_internal, params.jerk_internal
@@ -796,286 +810,41 @@ def _step_arrays(params: LimiterParams, state: LimiterState, r: np.ndarray,
     return new_state, command.copy()
 
 
-# -- the per-tick scalar path --------------------------------------------------------------------
-# For 1–6 joints, NumPy's per-call overhead dominates a tick (a few hundred µs); the same
-# arithmetic on Python floats, joint by joint, costs a fraction. Every expression below is the
-# one of the array form (_step_arrays, stop_position, _projected, _interval, _band) in the same
-# order, so the results are the same floats bit for bit; maxima and minima follow NumPy's
-# np.maximum / np.minimum (the second argument on ties, NaN in the first propagated). A tick
-# with a non-finite target (a braking joint), a non-finite input state or a non-finite result
-# is left to the array form; a joint whose next stop point misses the braking band takes the
-# array form of the band (the 65-point grid).
+# -- the compiled tick ------------------------------------------------------------------------
 
-def _max(x, y):
-    """np.maximum on two floats: the second on ties, NaN propagated."""
-    return x if x > y or x != x else y
+@functools.cache
+def _kernel():
+    """The compiled tick (safety/limiter_kernel.py), imported (and so compiled or loaded from
+    numba's cache) on first use: a process that never builds limiter parameters does not
+    import numba."""
+    from telesmooth.safety import limiter_kernel
+
+    return limiter_kernel
 
 
-def _min(x, y):
-    """np.minimum on two floats: the second on ties, NaN propagated."""
-    return x if x < y or x != x else y
+_NO_LOOKAHEAD = np.zeros((0, 0))
+_NO_LOOKAHEAD.flags.writeable = False
 
 
-def _stop_scalar(position, velocity, acceleration, a_max, j_max):
-    """:func:`stop_position` of one joint on Python floats (the same operations)."""
-    sign = 1.0 if velocity + acceleration * abs(acceleration) / (2.0 * j_max) >= 0.0 else -1.0
-    v = sign * velocity
-    a = sign * acceleration
-    # _max / _min written out (the hot path of a tick).
-    x = j_max * v + 0.5 * a * a
-    peak_sq = x if x > 0.0 or x != x else 0.0
-    x = math.sqrt(peak_sq)
-    peak = x if x < a_max or x != x else a_max
-    x = (a + peak) / j_max
-    t1 = x if x > 0.0 or x != x else 0.0
-    x = (peak_sq - peak * peak) / (j_max * a_max)
-    t2 = x if x > 0.0 or x != x else 0.0
-    t3 = peak / j_max
-    jt1 = j_max * t1
-    d1 = t1 * (v + t1 * (0.5 * a - jt1 / 6.0))
-    v1 = v + t1 * (a - 0.5 * jt1)
-    d23 = v1 * (t2 + t3) - peak * (0.5 * t2 * t2 + t2 * t3 + t3 * t3 / 3.0)
-    return position + sign * (d1 + d23)
-
-
-def _stop_grid(position, velocity, acceleration, a_max, j_max, two_j_max, j_a_max):
-    """:func:`stop_position` on (k, G) arrays, the same operations in the same order but
-    mostly in place; the limits come as (k, G) arrays too, with 2·j_max and j_max·a_max
-    (the same products, formed per joint); overwrites ``velocity`` and ``acceleration``."""
-    s = np.abs(acceleration)
-    s *= acceleration
-    s /= two_j_max
-    s += velocity
-    sign = np.where(s >= 0.0, 1.0, -1.0)
-    v = velocity
-    v *= sign
-    a = acceleration
-    a *= sign
-    half_a = 0.5 * a
-    peak_sq = j_max * v
-    s = half_a * a
-    peak_sq += s
-    np.maximum(peak_sq, 0.0, out=peak_sq)
-    peak = np.sqrt(peak_sq)
-    np.minimum(peak, a_max, out=peak)
-    t1 = a + peak
-    t1 /= j_max
-    np.maximum(t1, 0.0, out=t1)
-    t2 = peak * peak
-    np.subtract(peak_sq, t2, out=t2)
-    t2 /= j_a_max
-    np.maximum(t2, 0.0, out=t2)
-    t3 = peak / j_max
-    jt1 = j_max * t1
-    # d1 = t1 (v + t1 (a/2 − j t1/6))
-    d1 = jt1 / 6.0
-    np.subtract(half_a, d1, out=d1)
-    d1 *= t1
-    d1 += v
-    d1 *= t1
-    # v1 = v + t1 (a − j t1/2)
-    v1 = 0.5 * jt1
-    np.subtract(a, v1, out=v1)
-    v1 *= t1
-    v1 += v
-    # d23 = v1 (t2 + t3) − a_p (t2²/2 + t2 t3 + t3²/3)
-    q = 0.5 * t2
-    q *= t2
-    s = t2 * t3
-    q += s
-    s = t3 * t3
-    s /= 3.0
-    q += s
-    q *= peak
-    d23 = t2 + t3
-    d23 *= v1
-    d23 -= q
-    d1 += d23
-    d1 *= sign
-    d1 += position
-    return d1
-
-
-def _crossings(dt, rows):
-    """The second part of :func:`_band` for the joints whose stop point misses the band,
-    given per joint as (p, v, a, lo, hi, wall_lo, wall_hi, a_max, j_max) floats: the lists
-    (u_lower, u_upper). The grid and its stop points are the same for both walls of a joint,
-    so they are evaluated once (the same floats)."""
-    columns = np.repeat(np.array([
-        (lo, hi - lo, acc, vel, p, a_lim, j_lim, 2.0 * j_lim, j_lim * a_lim, wall_lo, wall_hi)
-        for p, vel, acc, lo, hi, wall_lo, wall_hi, a_lim, j_lim in rows]).T[:, :, None],
-        _GRID_POINTS, axis=2)
-    low, width, acc0, vel0, pos0, a_max, j_max, two_j, j_a, walls = (
-        columns[0], columns[1], columns[2], columns[3], columns[4], columns[5], columns[6],
-        columns[7], columns[8], columns[9:])
-    grid = width * _GRID
-    grid += low                     # = lo + (hi − lo)·grid, as in _band
-    acc = grid * dt
-    acc += acc0
-    vel = acc * dt
-    vel += vel0
-    pos = vel * dt
-    pos += pos0
-    stops = _stop_grid(pos, vel, acc, a_max, j_max, two_j, j_a)
-    # Per row and wall: values = stops − wall; values ≤ 0 ⇔ stops ≤ wall for finite floats
-    # (a difference of finite floats is 0 only for equal ones), so the bracket index is
-    # counted on the stops; the rest is scalar arithmetic on the bracket's two points.
-    counts = (stops <= walls).sum(axis=2).tolist()
-    stops = stops.tolist()
-    lower, upper = [], []
-    for row, (_, _, _, left, right, wall_lo, wall_hi, _, _) in enumerate(rows):
-        ends = []
-        row_stops = stops[row]
-        for wall, count in zip((wall_lo, wall_hi), (counts[0][row], counts[1][row])):
-            if row_stops[-1] - wall <= 0.0:          # all below
-                ends.append(right)
-                continue
-            if row_stops[0] - wall > 0.0:            # none below
-                ends.append(left)
-                continue
-            index = min(max(count - 1, 0), _GRID_POINTS - 2)
-            width = right - left
-            low = left + width * _GRID_LIST[index]
-            high = left + width * _GRID_LIST[index + 1]
-            f_low = row_stops[index] - wall
-            f_high = row_stops[index + 1] - wall
-            denom = f_high - f_low
-            root = low - f_low * (high - low) / denom if denom > 0.0 else low
-            ends.append(_min(_max(root, low), high))
-        lower.append(_min(ends[0], ends[1]))
-        upper.append(ends[1])
-    return lower, upper
-
-
-def _step_scalar(params: LimiterParams, state: LimiterState, r: np.ndarray, future):
-    """:func:`limiter_step` on Python floats, or None for a tick left to the array form."""
-    dt = params.dt_s
-    dt2 = dt**2
-    targets = r.tolist()
-    positions = state.position.tolist()
-    velocities = state.velocity.tolist()
-    accelerations = state.acceleration.tolist()
-    braking = params.rule != "greedy"
-    check = sum(targets) + sum(positions) + sum(velocities) + sum(accelerations)
-    if braking:
-        older, previous = state.targets.tolist()
-        check += sum(older) + sum(previous)
-    if not math.isfinite(check):
+def _step_compiled(params: LimiterParams, state: LimiterState, r: np.ndarray, future):
+    """:func:`limiter_step` by the compiled kernel, or None for a tick left to the array
+    form (non-finite targets, states or results)."""
+    kernel = _kernel()
+    history = state.sent.shape[0]
+    out = np.empty((history + 5, r.shape[0]))
+    try:
+        done = kernel.limiter_tick(
+            *params._kernel_arguments, state.position, state.velocity, state.acceleration,
+            state.targets, state.sent, r, _NO_LOOKAHEAD if future is None else future, out)
+    except TypeError:           # state arrays of other dimensions or types than the kernel's
         return None
-    ahead = None
-    if future is not None and braking:
-        ahead = future.T.tolist()       # per joint: r_{k+1} … r_{k+L}
-    n = len(targets)
-    rows = params._joint_rows
-    p_out, v_out, a_out, lo_out, hi_out, hit_out, wlo_out, whi_out = ([] for _ in range(8))
-    outside = []      # the joints whose next stop point misses the band
-    for joint in range(n):
-        gauge_rows, upper_rows, lower_rows, a_lim, j_lim = rows[joint]
-        p = positions[joint]
-        vel = velocities[joint]
-        acc = accelerations[joint]
-        # _projected
-        gauge = -math.inf
-        for gv, ga in gauge_rows:
-            x = gv * vel + ga * acc
-            gauge = x if x > gauge or x != x else gauge
-        if gauge > 1.0:
-            scale = 1.0 / gauge
-            vel, acc = vel * scale, acc * scale
-        # _interval
-        moved = vel + acc * dt
-        hi = math.inf
-        for gv, ga, inverse in upper_rows:
-            x = (1.0 - (gv * moved + ga * acc)) * inverse
-            hi = x if x < hi or x != x else hi
-        hi = hi if hi < j_lim or hi != hi else j_lim
-        lo = -math.inf
-        for gv, ga, inverse in lower_rows:
-            x = (1.0 - (gv * moved + ga * acc)) * inverse
-            lo = x if x > lo or x != x else lo
-        lo = lo if lo > -j_lim or lo != lo else -j_lim
-        target = targets[joint]
-        u_hit = ((target - p) / dt - vel - acc * dt) / dt2
-        if braking:
-            r1, r2 = previous[joint], older[joint]
-            target_stop = _stop_scalar(target, (target - r1) / dt,
-                                       (target - 2.0 * r1 + r2) / dt2, a_lim, j_lim)
-            wall_hi = target if target > target_stop else target_stop   # target is finite
-            wall_lo = target if target < target_stop else target_stop
-            if ahead is not None:
-                column = ahead[joint]
-                if all(map(math.isfinite, column)):
-                    seq = [r2, r1, target] + column
-                    end_stop = _stop_scalar(seq[-1], (seq[-1] - seq[-2]) / dt,
-                                            (seq[-1] - 2.0 * seq[-2] + seq[-3]) / dt2,
-                                            a_lim, j_lim)
-                    wall_hi = _max(wall_hi, _max(max(seq[2:]), end_stop))
-                    wall_lo = _min(wall_lo, _min(min(seq[2:]), end_stop))
-            # _band, its first part: the stop point after clip(u_hit, lo, hi).
-            x = u_hit if u_hit > lo or u_hit != u_hit else lo
-            hit = x if x < hi or x != x else hi
-            acc_next = acc + hit * dt
-            vel_next = vel + acc_next * dt
-            f_hit = _stop_scalar(p + vel_next * dt, vel_next, acc_next, a_lim, j_lim)
-            x = abs(wall_lo)
-            tolerance_lo = (x if x > 1.0 or x != x else 1.0) * _BAND_TOLERANCE
-            x = abs(wall_hi)
-            tolerance_hi = (x if x > 1.0 or x != x else 1.0) * _BAND_TOLERANCE
-            if not (f_hit - wall_lo >= -tolerance_lo and f_hit - wall_hi <= tolerance_hi):
-                outside.append(joint)
-            wlo_out.append(wall_lo)
-            whi_out.append(wall_hi)
-        p_out.append(p)
-        v_out.append(vel)
-        a_out.append(acc)
-        lo_out.append(lo)
-        hi_out.append(hi)
-        hit_out.append(u_hit)
-    lower_band, upper_band = lo_out, hi_out
-    if outside:
-        lower, upper = _crossings(dt, [
-            (p_out[joint], v_out[joint], a_out[joint], lo_out[joint], hi_out[joint],
-             wlo_out[joint], whi_out[joint], rows[joint][3], rows[joint][4])
-            for joint in outside])
-        lower_band, upper_band = list(lo_out), list(hi_out)
-        for joint, low, high in zip(outside, lower, upper):
-            lower_band[joint], upper_band[joint] = low, high
-    commands, new_v, new_a = [], [], []
-    all_exact = True
-    for joint in range(n):
-        lo, hi, u_hit = lo_out[joint], hi_out[joint], hit_out[joint]
-        bound = lower_band[joint]
-        u = u_hit if u_hit > bound or u_hit != u_hit else bound
-        bound = upper_band[joint]
-        u = u if u < bound or u != u else bound
-        u = u if u > lo or u != u else lo
-        u = u if u < hi or u != u else hi
-        if lo > hi:
-            u = 0.5 * (lo + hi)
-        acc = a_out[joint] + u * dt
-        vel = v_out[joint] + acc * dt
-        if u == u_hit:
-            command = targets[joint]
-        else:
-            command = p_out[joint] + vel * dt
-            all_exact = False
-        commands.append(command)
-        new_v.append(vel)
-        new_a.append(acc)
-    if not math.isfinite(sum(commands) + sum(new_v) + sum(new_a)):
+    if done == kernel.LEFT_TO_ARRAYS:
         return None
-    command = np.array(commands)
-    sent = np.empty(state.sent.shape)
-    sent[:-1] = state.sent[1:]
-    sent[-1] = command
-    if braking:
-        history = np.array([previous, targets])
-    else:
-        history = np.empty((2, n))
-        history[0] = state.targets[1]
-        history[1] = r
+    # The new state's arrays are rows of ``out`` (kernel.ROW_…), never written again.
+    # Positional fields: position, velocity, acceleration, sent, targets, held, ticks, outcome.
+    command = out[0]
     new_state = LimiterState(
-        position=command, velocity=np.array(new_v), acceleration=np.array(new_a), sent=sent,
-        targets=history, held=np.zeros(n, dtype=bool), ticks=state.ticks + 1,
-        outcome=LimiterOutcome.EXACT if all_exact else LimiterOutcome.LIMITED)
+        command, out[1], out[2], out[3:3 + history], out[3 + history:], params._none_held,
+        state.ticks + 1,
+        LimiterOutcome.EXACT if done == kernel.EXACT else LimiterOutcome.LIMITED)
     return new_state, command.copy()

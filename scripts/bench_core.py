@@ -692,6 +692,8 @@ def _table(offline, online, simulation=None, experiment=None) -> str:
              "banded-ip [s] | banded-ip / RTS | banded-ip [MB] | banded-ip / RTS memory | "
              "drake / banded-ip | banded-ip [µs/sample] | max |Δq| [rad] |",
              "|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    if not offline:         # --online-only
+        lines = []
 
     def cell(row, key, fmt):
         return fmt.format(row[key]) if key in row else "–"
@@ -711,7 +713,8 @@ def _table(offline, online, simulation=None, experiment=None) -> str:
                 f"{cell(r, f'{mode}_drake_over_banded_ip', '{:.1f}')} | "
                 f"{cell(r, f'{mode}_banded_ip_us_per_sample', '{:.1f}')} | "
                 f"{cell(r, f'{mode}_max_position_difference_rad', '{:.1e}')} |")
-    lines += ["", "Online step per 4 Hz tick, 6 joints", "",
+    lines += [""] if offline else []
+    lines += ["Online step per 4 Hz tick, 6 joints", "",
               "| L | superstate [µs/tick] | recursion [µs/tick] | superstate / recursion | "
               "Online-CKS [µs/tick] | limiter alone [µs/tick] | "
               "online-hard (Online-CKS + limiter) [µs/tick] | "
@@ -790,6 +793,10 @@ def build_parser() -> argparse.ArgumentParser:
                              "run, 33.5 s on Defaults; 0 = skip the simulation rows)")
     parser.add_argument("--bare-plant-duration", type=_number, default=20.0,
                         help="simulated seconds of each bare-plant row (default 20)")
+    parser.add_argument("--online-only", action="store_true",
+                        help="only the online step per tick (Online-CKS, limiter, online-hard, "
+                             "Ruckig at L = 3 and 75): no offline, simulation or experiment "
+                             "rows")
     parser.add_argument("--experiment-shapes", default=",".join(EXPERIMENT_SAMPLE),
                         help="LASA shapes (demonstration 0) of the experiment's sample "
                              f"(default {','.join(EXPERIMENT_SAMPLE)}; 'none' = skip; skipped "
@@ -832,10 +839,10 @@ def _number(text: str) -> float:
 def _run(args, out: Path) -> str:
     sizes = [n for n in (100, 1_000, 10_000, 100_000, 1_000_000) if n <= args.max_n]
     print("telesmooth core benchmark (one process per row)", file=sys.stderr)
-    offline = bench_offline(sizes, args.repeat, args.max_drake_n)
+    offline = [] if args.online_only else bench_offline(sizes, args.repeat, args.max_drake_n)
     online = bench_online((3, 75), args.ticks, args.repeat)
     simulation = None
-    if args.sim_duration is None or args.sim_duration > 0:
+    if not args.online_only and (args.sim_duration is None or args.sim_duration > 0):
         simulation = bench_simulation(args.sim_duration, args.bare_plant_duration)
     experiment = None
     shapes = [s for s in args.experiment_shapes.split(",") if s and s != "none"]

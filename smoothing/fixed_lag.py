@@ -46,7 +46,13 @@ from telesmooth.arms.joint_vectors import (
     check_positive_int,
     check_trajectory,
 )
-from telesmooth.smoothing.model import MAX_LAG, SCALED_TRANSITION, STATE_SIZE, JerkModel
+from telesmooth.smoothing.model import (
+    MAX_LAG,
+    SCALED_TRANSITION,
+    STATE_SIZE,
+    UNIT_PROCESS_COVARIANCE,
+    JerkModel,
+)
 
 FIXED_LAG_FORMS = ("recursion", "superstate")
 """The two forms of the fixed-lag smoother (its ``method`` argument); the fixed-lag *smoothing
@@ -67,6 +73,16 @@ class FixedLagState:
     blocks_scaled: np.ndarray
     covariance: np.ndarray
     steps: int
+
+
+def frozen_instance(cls, **fields):
+    """An instance of the frozen dataclass ``cls`` from all its ``fields``, as ``cls(**fields)``
+    builds it, for the per-tick paths: a frozen dataclass's ``__init__`` sets each field by
+    ``object.__setattr__``, a microsecond per state at 4 Hz rates that are otherwise a few µs.
+    Only for classes without ``__post_init__`` or defaults left out (tests check both)."""
+    instance = object.__new__(cls)
+    instance.__dict__.update(fields)
+    return instance
 
 
 class FixedLagSmoother:
@@ -105,6 +121,19 @@ class FixedLagSmoother:
             )
         self._rest_cov_scaled = model.cov_to_scaled(rest_covariance)
         self._default_q_scaled = model.scaled_process_covariance()  # Q̃(σ_0), reused each tick
+        # The recursion form runs compiled (smoothing/fixed_lag_kernel.py, the same arithmetic
+        # in a fixed summation order): compiled or loaded from numba's cache here, once per
+        # process, not in the first step.
+        self._compiled = None
+        if method == "recursion":
+            from telesmooth.smoothing import fixed_lag_kernel
+
+            constants = [np.array(c, dtype=float) for c in (
+                model.sigma, model.r, SCALED_TRANSITION, UNIT_PROCESS_COVARIANCE)]
+            for array in constants:
+                array.flags.writeable = False
+            self._compiled = (fixed_lag_kernel, tuple(constants), model.dt_s**7)
+        self._state_shape = (model.num_joints, self.lag + 1, STATE_SIZE)
 
     @property
     def num_blocks(self) -> int:
@@ -127,6 +156,10 @@ class FixedLagSmoother:
 
     def step(self, state: FixedLagState, measurement, sigma=None) -> FixedLagState:
         """Absorbs z_k (num_joints,) [rad] with σ_k (num_joints,) for the transition into k."""
+        if self._compiled is not None:
+            new_state = self._step_compiled(state, measurement, sigma)
+            if new_state is not None:
+                return new_state
         z = check_finite_per_joint("measurement", measurement, self.model.num_joints)
         q_scaled = (self._default_q_scaled if sigma is None
                     else self.model.scaled_process_covariance(sigma))
@@ -159,6 +192,27 @@ class FixedLagSmoother:
             state = self.step(state, z[k], sigma)
             outputs[k] = self.output(state)
         return outputs
+
+    def _step_compiled(self, state, measurement, sigma):
+        """:meth:`step` of the recursion form by the compiled kernel, or None when the NumPy
+        form must take it (a non-finite or misshapen measurement, σ or state: it raises the
+        error that names them)."""
+        kernel, (default_sigma, r, phi, unit_q), dt7 = self._compiled
+        means, cross = state.blocks_scaled, state.covariance
+        if means.shape != self._state_shape:
+            return None
+        new_means, new_cross = np.empty(means.shape), np.empty(cross.shape)
+        try:
+            done = kernel.recursion_step(
+                means, cross, np.asarray(measurement, dtype=float),
+                default_sigma if sigma is None else np.asarray(sigma, dtype=float), r, phi,
+                unit_q, dt7, new_means, new_cross)
+        except TypeError:       # arrays of other dimensions or types than the kernel's
+            return None
+        if not done:
+            return None
+        return frozen_instance(FixedLagState, blocks_scaled=new_means, covariance=new_cross,
+                               steps=state.steps + 1)
 
     # -- the two exact implementations -------------------------------------------------------
 

@@ -35,8 +35,8 @@ from telesmooth.arms.joint_vectors import (
     check_trajectory,
 )
 from telesmooth.atomic_files import write_text
-from telesmooth.smoothing.fixed_lag import FixedLagSmoother, FixedLagState
-from telesmooth.smoothing.model import JerkModel
+from telesmooth.smoothing.fixed_lag import FixedLagSmoother, FixedLagState, frozen_instance
+from telesmooth.smoothing.model import SCALED_TRANSITION, UNIT_PROCESS_COVARIANCE, JerkModel
 from telesmooth.user_input import MAX_JSON_BYTES, MAX_JSON_DEPTH, quote, read_file_bytes
 
 REDUCED_Q_VARIANTS = ("A", "B1", "B2")
@@ -175,6 +175,23 @@ class OnlineCks:
             if config.delta_sigma is not None
             else model.sigma / 40.0
         )
+        # The default settings (variant A, the recursion form) run compiled
+        # (smoothing/fixed_lag_kernel.py): compiled or loaded from numba's cache here, once
+        # per process, not in the first cycle.
+        self._compiled = None
+        if config.variant == "A" and method == "recursion":
+            from telesmooth.smoothing import fixed_lag_kernel as kernel
+
+            dt = model.dt_s
+            constants = [model.r, SCALED_TRANSITION, UNIT_PROCESS_COVARIANCE, model.scaling,
+                         self.max_acceleration, self.max_jerk, self.sigma_min,
+                         self.delta_sigma]
+            constants = [np.array(c, dtype=float) for c in constants]
+            for array in constants:
+                array.flags.writeable = False
+            self._compiled = (kernel.online_cks_tick, tuple(constants), (
+                dt**7, dt**2, dt**3, float(config.rho), config.step_rule == "multiplicative",
+                kernel.TRIGGER_STATE if config.trigger == "state" else kernel.TRIGGER_FD))
 
     @property
     def lag(self) -> int:
@@ -212,6 +229,10 @@ class OnlineCks:
     def step(self, state: OnlineCksState, measurement):
         """One 4 Hz cycle. Returns (new state, x̂_{k−L|k} (num_joints, 4), triggered (J,))."""
         z = np.asarray(measurement, dtype=float)
+        if self._compiled is not None:
+            done = self._step_compiled(state, z)
+            if done is not None:
+                return done
         sigma = state.sigma
         new_smoother = self.smoother.step(state.smoother, z, sigma)
         output = self.smoother.output(new_smoother)
@@ -242,6 +263,35 @@ class OnlineCks:
         new_state = OnlineCksState(
             smoother=new_smoother, sigma=sigma, sent_positions=sent, window=window
         )
+        return new_state, output, triggered
+
+    def _step_compiled(self, state: OnlineCksState, z: np.ndarray):
+        """:meth:`step` by the compiled kernel (variant A, recursion form), or None when the
+        NumPy form must take the cycle (a non-finite or misshapen measurement or state: it
+        raises the error that names them)."""
+        tick, constants, scalars = self._compiled
+        smoother = state.smoother
+        means, cross = smoother.blocks_scaled, smoother.covariance
+        n = means.shape[0]
+        if means.shape != self.smoother._state_shape:
+            return None         # another smoother's state: the NumPy form reports it
+        new_means, new_cross = np.empty(means.shape), np.empty(cross.shape)
+        output, triggered = np.empty((n, 4)), np.empty(n, dtype=bool)
+        sigma, sent = np.empty(n), np.empty((3, n))
+        r, phi, unit_q, scaling, a_max, j_max, sigma_min, delta_sigma = constants
+        try:
+            done = tick(means, cross, z, state.sigma, r, phi, unit_q, scaling, a_max, j_max,
+                        sigma_min, delta_sigma, state.sent_positions, *scalars, new_means,
+                        new_cross, output, triggered, sigma, sent)
+        except TypeError:       # arrays of other dimensions or types than the kernel's
+            return None
+        if not done:
+            return None
+        new_state = frozen_instance(
+            OnlineCksState, smoother=frozen_instance(
+                FixedLagState, blocks_scaled=new_means, covariance=new_cross,
+                steps=smoother.steps + 1),
+            sigma=sigma, sent_positions=sent, window=state.window)
         return new_state, output, triggered
 
     def run(self, measurements, *, start_position=None, sigma0=None) -> OnlineCksRun:

@@ -461,6 +461,19 @@ def test_bench_writes_its_figures_and_their_ratios(tmp_path, capsys):
     assert "Online-CKS / Ruckig" in captured.out
 
 
+def test_bench_online_only_runs_just_the_online_rows(tmp_path, capsys):
+    pytest.importorskip("ruckig")
+    status = main(["bench", "--out", str(tmp_path), "--online-only", "--repeat", "1",
+                   "--ticks", "20"])
+    captured = capsys.readouterr()
+    assert status == 0, captured.err
+    data = json.loads((tmp_path / "bench_core.json").read_text())
+    assert data["offline_cks"] == [] and data["simulation"] == {} and data["experiment"] == {}
+    assert [r["lag"] for r in data["online_step"]] == [3, 75]
+    table = (tmp_path / "bench_core.md").read_text()
+    assert table.startswith("Online step per 4 Hz tick") and "Offline-CKS" not in table
+
+
 def test_a_solver_that_gives_up_exits_2_naming_the_joints_and_writes_nothing(
         tmp_path, capsys, input_csv, monkeypatch):
     # The banded interior point capped at one Newton step cannot converge: the failure is
