@@ -24,7 +24,18 @@ overhead. Compiled, the same arithmetic costs a few.
 
 from __future__ import annotations
 
-__all__ = ["compile_kernel", "readonly_array"]
+import numpy as np
+
+__all__ = ["compile_kernel", "readonly_array", "readonly_copy"]
+
+
+def readonly_copy(value) -> np.ndarray:
+    """A read-only float64 copy of ``value``: the constant inputs of a kernel (and the
+    parameters they come from), which the readonly signatures accept and nothing can change
+    between ticks."""
+    array = np.array(value, dtype=float)
+    array.flags.writeable = False
+    return array
 
 
 def readonly_array(ndim: int, layout: str = "A"):

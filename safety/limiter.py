@@ -143,6 +143,7 @@ from telesmooth.arms.joint_vectors import (
     check_finite_per_joint,
     check_positive_scalar,
 )
+from telesmooth.compiled import readonly_copy
 
 __all__ = [
     "DEFAULT_MARGIN",
@@ -521,12 +522,6 @@ class LimiterState(NamedTuple):
     outcome: LimiterOutcome
 
 
-def _readonly(array) -> np.ndarray:
-    array = np.array(array, dtype=float)
-    array.flags.writeable = False
-    return array
-
-
 def limiter_params(
     *,
     dt_s: float,
@@ -590,12 +585,12 @@ def limiter_params(
     for array in (upper, lower):
         array.flags.writeable = False
     return LimiterParams(
-        dt_s=dt, max_velocity=_readonly(v_max), max_acceleration=_readonly(a_max),
-        max_jerk=_readonly(j_max), rule=rule, margin=margin, joint_names=names,
-        stoppable_sets=sets, velocity_internal=_readonly(v_in),
-        acceleration_internal=_readonly(a_in), jerk_internal=_readonly(j_in),
-        facet_velocity=_readonly(gv), facet_acceleration=_readonly(ga), upper_rows=upper,
-        lower_rows=lower, inverse_gb=_readonly(inverse))
+        dt_s=dt, max_velocity=readonly_copy(v_max), max_acceleration=readonly_copy(a_max),
+        max_jerk=readonly_copy(j_max), rule=rule, margin=margin, joint_names=names,
+        stoppable_sets=sets, velocity_internal=readonly_copy(v_in),
+        acceleration_internal=readonly_copy(a_in), jerk_internal=readonly_copy(j_in),
+        facet_velocity=readonly_copy(gv), facet_acceleration=readonly_copy(ga), upper_rows=upper,
+        lower_rows=lower, inverse_gb=readonly_copy(inverse))
 
 
 def limiter_rest_state(params: LimiterParams, q, *, field: str = "q") -> LimiterState:
@@ -842,9 +837,11 @@ def _step_compiled(params: LimiterParams, state: LimiterState, r: np.ndarray, fu
         return None
     # The new state's arrays are rows of ``out`` (kernel.ROW_…), never written again.
     # Positional fields: position, velocity, acceleration, sent, targets, held, ticks, outcome.
-    command = out[0]
+    sent = kernel.ROW_SENT
+    command = out[kernel.ROW_COMMAND]
     new_state = LimiterState(
-        command, out[1], out[2], out[3:3 + history], out[3 + history:], params._none_held,
+        command, out[kernel.ROW_VELOCITY], out[kernel.ROW_ACCELERATION],
+        out[sent:sent + history], out[sent + history:], params._none_held,
         state.ticks + 1,
         LimiterOutcome.EXACT if done == kernel.EXACT else LimiterOutcome.LIMITED)
     return new_state, command.copy()

@@ -13,9 +13,9 @@ argument on ties, NaN in the first propagated). The braking band's 65-point grid
 step are evaluated only for the joints whose next stop point misses the band (as in
 ``_band``), once for both walls. A tick with a non-finite target (a braking joint), a non-finite
 input state or a non-finite result is left to the array form: the kernel then returns
-``ok = False`` and no values.
+``LEFT_TO_ARRAYS`` and no values.
 
-The parameters come as plain arrays (``LimiterParams._kernel_tables``): per joint, the facet
+The parameters come as plain arrays (``LimiterParams._kernel_arguments``): per joint, the facet
 rows of its stoppable set S in three groups (all rows for the gauge, the rows bounding the jerk
 from above, from below), each row (g_v, g_a, 1/(g·b)), padded to a common count, the counts, and
 the internal (a_max, j_max).

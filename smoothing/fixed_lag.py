@@ -46,6 +46,7 @@ from telesmooth.arms.joint_vectors import (
     check_positive_int,
     check_trajectory,
 )
+from telesmooth.compiled import readonly_copy
 from telesmooth.smoothing.model import (
     MAX_LAG,
     SCALED_TRANSITION,
@@ -128,11 +129,9 @@ class FixedLagSmoother:
         if method == "recursion":
             from telesmooth.smoothing import fixed_lag_kernel
 
-            constants = [np.array(c, dtype=float) for c in (
-                model.sigma, model.r, SCALED_TRANSITION, UNIT_PROCESS_COVARIANCE)]
-            for array in constants:
-                array.flags.writeable = False
-            self._compiled = (fixed_lag_kernel, tuple(constants), model.dt_s**7)
+            constants = tuple(readonly_copy(c) for c in (
+                model.sigma, model.r, SCALED_TRANSITION, UNIT_PROCESS_COVARIANCE))
+            self._compiled = (fixed_lag_kernel, constants, model.dt_s**7)
         self._state_shape = (model.num_joints, self.lag + 1, STATE_SIZE)
 
     @property

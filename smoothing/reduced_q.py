@@ -35,6 +35,7 @@ from telesmooth.arms.joint_vectors import (
     check_trajectory,
 )
 from telesmooth.atomic_files import write_text
+from telesmooth.compiled import readonly_copy
 from telesmooth.smoothing.fixed_lag import FixedLagSmoother, FixedLagState, frozen_instance
 from telesmooth.smoothing.model import SCALED_TRANSITION, UNIT_PROCESS_COVARIANCE, JerkModel
 from telesmooth.user_input import MAX_JSON_BYTES, MAX_JSON_DEPTH, quote, read_file_bytes
@@ -186,10 +187,7 @@ class OnlineCks:
             constants = [model.r, SCALED_TRANSITION, UNIT_PROCESS_COVARIANCE, model.scaling,
                          self.max_acceleration, self.max_jerk, self.sigma_min,
                          self.delta_sigma]
-            constants = [np.array(c, dtype=float) for c in constants]
-            for array in constants:
-                array.flags.writeable = False
-            self._compiled = (kernel.online_cks_tick, tuple(constants), (
+            self._compiled = (kernel.online_cks_tick, tuple(map(readonly_copy, constants)), (
                 dt**7, dt**2, dt**3, float(config.rho), config.step_rule == "multiplicative",
                 kernel.TRIGGER_STATE if config.trigger == "state" else kernel.TRIGGER_FD))
 
