@@ -20,7 +20,6 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
@@ -36,7 +35,7 @@ from telesmooth.diagrams.teleoperation import (
     add_onboard_loggers,
     connect_uplink_to_robot,
 )
-from telesmooth.systems.flexible_arm import FlexibleJointArm
+from telesmooth.systems.flexible_arm import FlexibleJointArm, make_simulator
 from telesmooth.systems.laser_tracker import tracker_record
 from telesmooth.systems.planned_path_source import PlannedPathSource
 from telesmooth.systems.uplink import Uplink
@@ -194,7 +193,7 @@ def run_offline(scenario: Scenario, *, constraint: str = "trajectory", max_veloc
     if not plan.is_valid:
         return plan, None
     handles = MakeOfflinePlaybackDiagram(scenario, plan)
-    simulator = Simulator(handles.diagram)
+    simulator = make_simulator(handles.diagram, scenario.onboard)
     simulator.AdvanceTo(handles.duration_s if duration_s is None else float(duration_s))
     return plan, copy_logs(handles.logs, simulator.get_context())
 

@@ -15,7 +15,6 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-from pydrake.systems.analysis import Simulator
 
 from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_forward_kinematics
@@ -23,6 +22,7 @@ from telesmooth.diagrams.scenario import Scenario, describe_operator, make_hapti
 from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram, uplink_packets
 from telesmooth.diagrams.visualization import save_meshcat_recording, start_meshcat_recording
 from telesmooth.smoothing.metrics import smoothing_metrics, tracking_errors
+from telesmooth.systems.flexible_arm import make_simulator
 from telesmooth.systems.laser_tracker import tracker_record
 
 __all__ = ["ResponseErrors", "SimulationRecord", "plant_summary", "plant_text",
@@ -167,7 +167,7 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
     """
     handles = MakeTeleoperationDiagram(scenario, meshcat=meshcat)
     duration_s = run_duration_s(scenario, handles.ground.recording, duration_s)
-    simulator = Simulator(handles.diagram)
+    simulator = make_simulator(handles.diagram, scenario.onboard)
     simulator.Initialize()
     start = time.perf_counter()
     # Ticks at exactly duration_s are not run by AdvanceTo; advance just past the last one.

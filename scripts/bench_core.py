@@ -435,16 +435,15 @@ def _chain_cell(name: str, duration_s: float | None) -> dict:
 
 def _chain_shares_cell(name: str, duration_s: float | None) -> dict:
     """The chain run again with a timer around every Python callback: CPU time per stage."""
-    from pydrake.systems.analysis import Simulator
-
     from telesmooth.diagrams.simulation import run_duration_s
     from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram
+    from telesmooth.systems.flexible_arm import make_simulator
 
     scenario = _load_chain_scenario(name)
     with CallbackTimers() as timers:
         handles = MakeTeleoperationDiagram(scenario)
     duration = run_duration_s(scenario, handles.ground.recording, duration_s)
-    simulator = Simulator(handles.diagram)
+    simulator = make_simulator(handles.diagram, scenario.onboard)
     simulator.Initialize()
     timers.seconds.clear()
     timers.calls.clear()

@@ -217,12 +217,12 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
     """The onboard process; with ``uplink_key`` only authentic commands are accepted, and
     only those addressed to this run's fresh random epoch (announced in the telemetry)."""
     from pydrake.lcm import DrakeLcm
-    from pydrake.systems.analysis import Simulator
 
     from telesmooth.diagrams.teleoperation import MakeOnboardDiagram
     from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
     from telesmooth.link.session import new_epoch
     from telesmooth.link.udpm_receiver import UdpmReceiver
+    from telesmooth.systems.flexible_arm import make_simulator
     from telesmooth.systems.laser_tracker import tracker_record
     from telesmooth.systems.link_guard import GUARD_MODES
 
@@ -240,7 +240,7 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
                                  uplink_lcm=uplink_lcm, onboard_epoch=epoch)
     _log(f"onboard: listening on {lcm_url} for {duration_s:.2f} s (authentication "
          f"{scenario.command_receiver.authentication}, epoch {epoch:013x})")
-    simulator = Simulator(handles.diagram)
+    simulator = make_simulator(handles.diagram, scenario.onboard)
     receiver, guard = handles.onboard.receiver, handles.onboard.guard
     subscriber = handles.diagram.GetSubsystemByName("joint_command_subscriber")
 

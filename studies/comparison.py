@@ -55,7 +55,6 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from telesmooth.arms.collision import ArmCollisionModel
@@ -87,6 +86,7 @@ from telesmooth.smoothing.metrics import (
     tracking_errors,
 )
 from telesmooth.smoothing.offline import OFFLINE_SOLVERS, with_rest_history
+from telesmooth.systems.flexible_arm import make_simulator
 
 __all__ = [
     "Comparison",
@@ -452,7 +452,7 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
                                        q_start=q_start)
     diagram = builder.Build()
     diagram.set_name(f"compare_{label}")
-    simulator = Simulator(diagram)
+    simulator = make_simulator(diagram, scenario.onboard)
     simulator.AdvanceTo(setup.duration_s)
     logs = copy_logs(loggers, simulator.get_context())
     simulated = time.perf_counter()

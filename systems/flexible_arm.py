@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import MatrixGain
 
@@ -50,7 +51,9 @@ __all__ = [
     "DriveConfig",
     "FlexibleArmConfig",
     "FlexibleJointArm",
+    "INTEGRATION_SCHEMES",
     "desired_state_permutation",
+    "make_simulator",
 ]
 
 
@@ -58,6 +61,16 @@ DISCRETE_CONTACT_APPROXIMATIONS = ("lagged", "sap", "similar")
 """The values of ``MultibodyPlantConfig.discrete_contact_approximation`` that we accept: the
 SAP-based ones, whose implicit PD runs the motor servos. ``"tamsi"`` (deprecated in Drake) is
 refused: with it the plant's PD controllers do nothing (the motors stay put)."""
+
+INTEGRATION_SCHEMES = ("bogacki_shampine3", "runge_kutta3", "runge_kutta5", "radau1", "radau3",
+                       "implicit_euler", "velocity_implicit_euler")
+"""Drake's error-controlled integrators that ``FlexibleArmConfig.integration_scheme`` accepts
+(the fixed-step ones, ``runge_kutta2`` and the Euler methods, are refused: nothing would
+bound their error)."""
+
+MAX_INTEGRATOR_STEP_S = 0.1
+"""The integrator's largest step, s (drake's SimulatorConfig default; the chain's 10 ms events
+bound the steps long before)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -118,13 +131,21 @@ class FlexibleArmConfig:
         arm: Which arm: ``"air_bearing_arm"`` (default; the planar 3-joint laboratory set-up,
             moving in the world x-y plane) or ``"space_arm"`` (the 6-DOF manipulator).
         time_step_s: Plant step, s (≥ 0). 0 (default): a continuous plant, integrated by
-            the Simulator's error-controlled integrator (drake's default: third-order
-            Runge–Kutta, accuracy 1e-4), which follows each new command from the instant
-            the interpolator sees it. A positive step gives a discrete plant (SAP, implicit
+            the Simulator's error-controlled integrator (``integration_scheme`` at
+            ``integration_accuracy``), which follows each new command from the instant the
+            interpolator sees it. A positive step gives a discrete plant (SAP, implicit
             PD and damping) that reads its set-point at the start of each step: a command
             sent at t moves the motors only from the first step after t, so the set-point
             stalls for up to one step at every command, and the tracking error grows with
             the step (see docs/numerics.md, "Simulation speed and accuracy").
+        integration_scheme: The error-controlled integrator of the continuous plant, one of
+            :data:`INTEGRATION_SCHEMES` (drake's names). The default is
+            ``"bogacki_shampine3"`` (third order with an embedded second-order error
+            estimate). Applied by :func:`make_simulator`; ignored by a discrete plant.
+        integration_accuracy: The integrator's target accuracy (relative, > 0 and < 1). The
+            default 1e-3 keeps e, P, E_def and the link deflection within 1 % of a 1e-6
+            integration (``tests/test_plant_accuracy.py``; measured ≤ 0.6 %): the steps are
+            bounded by the 10 ms events, so a tighter target buys little.
         discrete_contact_approximation: One of :data:`DISCRETE_CONTACT_APPROXIMATIONS`.
             The default is ``"lagged"``. Without contact, all of them give the same
             result here.
@@ -142,6 +163,8 @@ class FlexibleArmConfig:
 
     arm: str = "air_bearing_arm"
     time_step_s: float = 0.0
+    integration_scheme: str = "bogacki_shampine3"
+    integration_accuracy: float = 1e-3
     discrete_contact_approximation: str = "lagged"
     gravity_m_per_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
     interpolator: CommandInterpolatorConfig = dataclasses.field(
@@ -160,6 +183,15 @@ class FlexibleArmConfig:
             raise ValueError(
                 f"FlexibleArmConfig.time_step_s = {step!r} must be finite and >= 0 "
                 "(0 = continuous plant)")
+        if self.integration_scheme not in INTEGRATION_SCHEMES:
+            raise ValueError(
+                f"FlexibleArmConfig.integration_scheme = {self.integration_scheme!r} must be "
+                f"one of {INTEGRATION_SCHEMES}")
+        accuracy = self.integration_accuracy
+        if isinstance(accuracy, bool) or not isinstance(accuracy, (int, float)) \
+                or not 0.0 < accuracy < 1.0:
+            raise ValueError(
+                f"FlexibleArmConfig.integration_accuracy = {accuracy!r} must be > 0 and < 1")
         if self.discrete_contact_approximation not in DISCRETE_CONTACT_APPROXIMATIONS:
             raise ValueError(
                 "FlexibleArmConfig.discrete_contact_approximation = "
@@ -476,3 +508,18 @@ class FlexibleJointArm(Diagram):
         self._plant.SetVelocities(plant_context, self._model_instance,
                                   np.zeros(self._plant.num_velocities(self._model_instance)))
         self._tracker.Sample(self._tracker.GetMyMutableContextFromRoot(root_context))
+
+
+def make_simulator(diagram, config: FlexibleArmConfig) -> Simulator:
+    """A Simulator of ``diagram`` whose integrator is the one ``config`` names.
+
+    ``integration_scheme`` at ``integration_accuracy``, largest step
+    :data:`MAX_INTEGRATOR_STEP_S`. Every run of a diagram that holds the continuous plant
+    (``simulate``, ``compare``, ``experiment``, the onboard process) is built here, so they
+    all integrate it alike. The Simulator is not initialized.
+    """
+    simulator = Simulator(diagram)
+    integrator = ResetIntegratorFromFlags(simulator, config.integration_scheme,
+                                          MAX_INTEGRATOR_STEP_S)
+    integrator.set_target_accuracy(config.integration_accuracy)
+    return simulator
