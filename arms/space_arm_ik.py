@@ -52,6 +52,7 @@ from pydrake.multibody.tree import JacobianWrtVariable
 from telesmooth.arms.description import ArmDescription
 from telesmooth.arms.drake_models import add_arm
 from telesmooth.arms.joint_vectors import check_joint_vector
+from telesmooth.compiled import readonly_copy
 
 __all__ = [
     "SPATIAL_POSE_SIZE",
@@ -71,6 +72,7 @@ SPATIAL_POSE_SIZE = 6
 # Iterations stop once the residual is below this fraction of the tolerances: one more
 # Newton step costs ~0.15 ms and would only polish digits far below the tolerance.
 _CONVERGED_FRACTION = 1e-3
+_KERNEL_DONE = 0     # space_arm_kernel.DONE (that module is imported only when it is used)
 # "No bound" for the diagnostic run of a failed solve, rad (the QP wants finite limits).
 _UNBOUNDED_RAD = 1e6
 
@@ -129,13 +131,17 @@ class SpaceArmKinematics:
 
     Args:
         arm: The arm (its committed rigid model is loaded; no SceneGraph, no collision).
+        compiled: Run the Gauss–Newton iterations compiled
+            (:mod:`telesmooth.arms.space_arm_kernel`; the default), Drake's kinematics
+            taking over only where the differential-IK QP is needed. False: every iteration
+            through Drake (the reference the compiled path is tested against).
 
     Raises:
         ValueError: If the loaded model's joints do not match ``arm.joint_names`` or the tool
             frame ``arm.tool_frame`` is missing.
     """
 
-    def __init__(self, arm: ArmDescription) -> None:
+    def __init__(self, arm: ArmDescription, *, compiled: bool = True) -> None:
         if not isinstance(arm, ArmDescription):
             raise ValueError(f"arm = {arm!r} must be an ArmDescription")
         plant = MultibodyPlant(time_step=0.0)
@@ -168,6 +174,17 @@ class SpaceArmKinematics:
         n = arm.num_joints
         self._params = DifferentialInverseKinematicsParameters(n, n)
         self._params.set_time_step(1.0)
+        # The kernel's constants (the conventions of arms/description.py, which the loaded
+        # model follows): joint axes, link origins at zero angles, the tool's offset.
+        self._kernel = None
+        if compiled:
+            from telesmooth.arms.space_arm_kernel import newton_kernel
+
+            self._kernel = newton_kernel
+            self._kernel_constants = (
+                readonly_copy([joint.axis for joint in arm.joints]),
+                readonly_copy(arm.link_origins_m()),
+                readonly_copy(arm.links[-1].segment_m))
 
     @property
     def arm(self) -> ArmDescription:
@@ -362,13 +379,22 @@ def _newton(kinematics, X_desired, q_seed, box_lower, box_upper, tolerances, max
     """
     position_tolerance_m, orientation_tolerance_rad = tolerances
     n = q_seed.size
-    params = kinematics._params
-    params.set_joint_position_limits((box_lower, box_upper))
-    zero_velocity = np.zeros(n)
     rotation_desired = X_desired.rotation()
     translation_desired = X_desired.translation()
     q = q_seed.copy()
     iterations = 0
+    if kinematics._kernel is not None:
+        # The same iterations compiled, as long as they are Gauss–Newton steps inside the box.
+        outcome, position_m, orientation_rad, iterations = kinematics._kernel(
+            rotation_desired.matrix(), translation_desired, box_lower, box_upper,
+            *kinematics._kernel_constants, _CONVERGED_FRACTION * position_tolerance_m,
+            _CONVERGED_FRACTION * orientation_tolerance_rad, max_iterations, q)
+        iterations = int(iterations)
+        if outcome == _KERNEL_DONE:
+            return q, position_m, orientation_rad, iterations
+    params = kinematics._params
+    params.set_joint_position_limits((box_lower, box_upper))
+    zero_velocity = np.zeros(n)
     while True:
         X = kinematics.tool_transform(q)
         # e = [log(R_d R^T); p_d - p], the spatial "velocity" that closes the gap in unit time.
