@@ -460,12 +460,11 @@ def _bare_plant_cell(arm: str, time_step_s: float, duration_s: float) -> dict:
     """The flexible arm's plant alone, every motor following 0.2 sin(π t) rad (a C++ source)
     with its PD servo: the floor of any simulation of the chain at this plant step."""
     from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
-    from pydrake.systems.analysis import Simulator
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import Multiplexer, Sine
 
     from telesmooth.arms.drake_models import add_arm
-    from telesmooth.systems.flexible_arm import FlexibleArmConfig
+    from telesmooth.systems.flexible_arm import FlexibleArmConfig, make_simulator
 
     config = FlexibleArmConfig(arm=arm, time_step_s=time_step_s)
     description = config.arm_description
@@ -484,7 +483,7 @@ def _bare_plant_cell(arm: str, time_step_s: float, duration_s: float) -> dict:
     builder.Connect(set_point.get_output_port(0), state.get_input_port(0))
     builder.Connect(set_point.get_output_port(1), state.get_input_port(1))
     builder.Connect(state.get_output_port(), plant.get_desired_state_input_port(instance))
-    simulator = Simulator(builder.Build())
+    simulator = make_simulator(builder.Build(), config)
     simulator.Initialize()
     wall, cpu = time.perf_counter(), time.process_time()
     simulator.AdvanceTo(duration_s)
