@@ -78,7 +78,6 @@ SPATIAL_POSE_SIZE = 6
 # Iterations stop once the residual is below this fraction of the tolerances: one more
 # Newton step costs ~0.15 ms and would only polish digits far below the tolerance.
 _CONVERGED_FRACTION = 1e-3
-_KERNEL_DONE = 0     # space_arm_kernel.DONE (that module is imported only when it is used)
 # "No bound" for the diagnostic run of a failed solve, rad (the QP wants finite limits).
 _UNBOUNDED_RAD = 1e6
 
@@ -184,9 +183,9 @@ class SpaceArmKinematics:
         # model follows): joint axes, link origins at zero angles, the tool's offset.
         self._kernel = None
         if compiled:
-            from telesmooth.arms.space_arm_kernel import newton_kernel
+            from telesmooth.arms import space_arm_kernel
 
-            self._kernel = newton_kernel
+            self._kernel = space_arm_kernel
             self._kernel_constants = (
                 readonly_copy([joint.axis for joint in arm.joints]),
                 readonly_copy(arm.link_origins_m()),
@@ -393,12 +392,12 @@ def _newton(kinematics, X_desired, q_seed, box_lower, box_upper, tolerances, max
     iterations = 0
     if kinematics._kernel is not None:
         # The same iterations compiled, as long as they are Gauss–Newton steps inside the box.
-        outcome, position_m, orientation_rad, iterations = kinematics._kernel(
+        kernel = kinematics._kernel
+        outcome, position_m, orientation_rad, iterations = kernel.newton_kernel(
             rotation_desired.matrix(), translation_desired, box_lower, box_upper,
             *kinematics._kernel_constants, _CONVERGED_FRACTION * position_tolerance_m,
             _CONVERGED_FRACTION * orientation_tolerance_rad, max_iterations, q)
-        iterations = int(iterations)
-        if outcome == _KERNEL_DONE:
+        if outcome == kernel.DONE:
             return q, position_m, orientation_rad, iterations
     params = kinematics._params
     params.set_joint_position_limits((box_lower, box_upper))

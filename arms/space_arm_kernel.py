@@ -61,13 +61,12 @@ def _rotation_about(axis, angle, out):
     out[2, 2] = t * z * z + c
 
 
-_SIGNATURE_KINEMATICS = types.void(
-    readonly_array(1), readonly_array(2), readonly_array(2), readonly_array(1),
-    types.float64[:, ::1], types.float64[::1], types.float64[:, ::1])
-
-
 @njit
-def _tool_kinematics(q, axes, origins, tool, rotation, position, jacobian):
+def tool_kinematics(q, axes, origins, tool, rotation, position, jacobian):
+    """rotation, position ← R_WT(q), p_WT(q); jacobian ← J_WT(q) (6 × n, [ω; v] rows).
+
+    Compiled with its caller (:func:`newton_kernel`, at import), or on its first call from
+    Python (the tests)."""
     n = q.shape[0]
     step = np.empty((3, 3))
     product = np.empty((3, 3))
@@ -108,12 +107,6 @@ def _tool_kinematics(q, axes, origins, tool, rotation, position, jacobian):
         jacobian[3, i] = w[1] * dz - w[2] * dy
         jacobian[4, i] = w[2] * dx - w[0] * dz
         jacobian[5, i] = w[0] * dy - w[1] * dx
-
-
-@compile_kernel(_SIGNATURE_KINEMATICS)
-def tool_kinematics(q, axes, origins, tool, rotation, position, jacobian):
-    """rotation, position ← R_WT(q), p_WT(q); jacobian ← J_WT(q) (6 × n, [ω; v] rows)."""
-    _tool_kinematics(q, axes, origins, tool, rotation, position, jacobian)
 
 
 @njit
@@ -185,7 +178,7 @@ def _solve_in_place(a, b):
     return True
 
 
-_SIGNATURE_NEWTON = types.UniTuple(types.float64, 4)(
+_SIGNATURE_NEWTON = types.Tuple((types.int64, types.float64, types.float64, types.int64))(
     readonly_array(2), readonly_array(1), readonly_array(1), readonly_array(1),
     readonly_array(2), readonly_array(2), readonly_array(1),
     types.float64, types.float64, types.int64, types.float64[::1])
@@ -207,7 +200,7 @@ def newton_kernel(rotation_desired, translation_desired, box_lower, box_upper, a
     step = np.empty(6)
     iterations = 0
     while True:
-        _tool_kinematics(q, axes, origins, tool, rotation, position, jacobian)
+        tool_kinematics(q, axes, origins, tool, rotation, position, jacobian)
         for r in range(3):                       # R_d R_Tᵀ
             for c in range(3):
                 relative[r, c] = (rotation_desired[r, 0] * rotation[c, 0]
@@ -218,15 +211,15 @@ def newton_kernel(rotation_desired, translation_desired, box_lower, box_upper, a
             step[3 + r] = translation_desired[r] - position[r]
         position_m = math.sqrt(step[3] * step[3] + step[4] * step[4] + step[5] * step[5])
         if position_m <= position_stop_m and orientation_rad <= orientation_stop_rad:
-            return float(DONE), position_m, orientation_rad, float(iterations)
+            return DONE, position_m, orientation_rad, iterations
         if iterations >= max_iterations:
-            return float(DONE), position_m, orientation_rad, float(iterations)
+            return DONE, position_m, orientation_rad, iterations
         if n != 6 or not _solve_in_place(jacobian, step):
-            return float(NEEDS_QP), position_m, orientation_rad, float(iterations)
+            return NEEDS_QP, position_m, orientation_rad, iterations
         for i in range(n):
             target = q[i] + step[i]
             if not (math.isfinite(step[i]) and box_lower[i] <= target <= box_upper[i]):
-                return float(NEEDS_QP), position_m, orientation_rad, float(iterations)
+                return NEEDS_QP, position_m, orientation_rad, iterations
         iterations += 1
         for i in range(n):
             q[i] = q[i] + step[i]

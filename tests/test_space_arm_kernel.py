@@ -9,6 +9,7 @@ unreachable, limit-violating and too-far poses.
 """
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -100,11 +101,12 @@ def test_where_the_step_leaves_the_box_the_qp_takes_over_as_in_drakes_path(both,
     kernel = compiled._kernel
 
     def recorded(*args):
-        result = kernel(*args)
-        outcomes.append(int(result[0]))
+        result = kernel.newton_kernel(*args)
+        outcomes.append(result[0])
         return result
 
-    monkeypatch.setattr(compiled, "_kernel", recorded)
+    monkeypatch.setattr(compiled, "_kernel", SimpleNamespace(
+        newton_kernel=recorded, DONE=kernel.DONE))
     rng = np.random.default_rng(3)
     statuses = set()
     for _ in range(200):
