@@ -34,7 +34,7 @@ iterations only on failures.
 
 Speed: while the iterations are Gauss–Newton steps inside the box, they run compiled
 (:mod:`telesmooth.arms.space_arm_kernel`, the same kinematics written out for the description's
-conventions: about a microsecond per iteration instead of ~100 µs through Drake's bindings);
+conventions: a few microseconds per iteration instead of ~100 µs through Drake's bindings);
 where the step would leave the box, Drake's kinematics and the QP continue from the same
 iterate. ``SpaceArmKinematics(arm, compiled=False)`` runs every iteration through Drake.
 """

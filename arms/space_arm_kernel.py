@@ -3,8 +3,8 @@
 The ground station solves the space arm's inverse kinematics at 100 Hz
 (:func:`telesmooth.arms.space_arm_ik.solve_space_arm_ik`). Through Drake, each Newton
 iteration (forward kinematics, angle-axis error, Jacobian, a 6×6 solve) costs ~100 µs of
-binding and NumPy overhead on a handful of numbers; compiled, an iteration costs about a
-microsecond.
+binding and NumPy overhead on a handful of numbers; compiled, an iteration costs a few
+microseconds (the kinematics about 2 µs).
 
 Kinematics (the conventions of :mod:`telesmooth.arms.description`): the base is the world
 frame; at zero angles every link frame is parallel to it, link i's frame sits at its joint's
