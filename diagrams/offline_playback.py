@@ -13,11 +13,24 @@ history the solver assumed, so the finite-difference limits hold across the star
 plant actually receives; after the last packet the uplink keeps re-sending the last (rest) pose.
 There is no delay FIFO and no online smoother in playback: the plan is already smoothed and
 checked, and the robot executes it from t = 0.
+
+The laser tracker in playback. Nothing in a playback reads the tracker while it runs, so with
+the (default) continuous plant the tracker is not a stage of the diagram:
+:func:`simulate_playback` records the integrator's
+dense output and the tracker takes its samples afterwards, at the same instants
+t_k = k·period (t_k before the run's end) and with the same computation as its periodic event
+(:meth:`~telesmooth.systems.laser_tracker.LaserTracker.Record`). Without a 100 Hz event the
+integrator no longer stops every 10 ms, which was 40 % of a playback's time; its steps stay
+capped at 10 ms (:data:`~telesmooth.systems.flexible_arm.MAX_INTEGRATOR_STEP_S`), so the
+accuracy is that of the event-bound run (``tests/test_playback_tracker.py`` compares the two).
+A discrete plant (``onboard.time_step_s`` > 0) has no dense output; its tracker stays in the
+diagram and samples with its own event.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder
@@ -30,11 +43,7 @@ from telesmooth.diagrams.offline_validation import (
     validation_report,
 )
 from telesmooth.diagrams.scenario import Scenario
-from telesmooth.diagrams.teleoperation import (
-    AddOnboardRobot,
-    add_onboard_loggers,
-    connect_uplink_to_robot,
-)
+from telesmooth.diagrams.teleoperation import AddOnboardRobot, connect_uplink_to_robot
 from telesmooth.systems.flexible_arm import FlexibleJointArm, make_simulator
 from telesmooth.systems.laser_tracker import tracker_record
 from telesmooth.systems.planned_path_source import PlannedPathSource
@@ -47,6 +56,8 @@ __all__ = [
     "SignalLog",
     "copy_logs",
     "run_offline",
+    "simulate_playback",
+    "tracker_sample_times",
 ]
 
 
@@ -67,9 +78,11 @@ class OfflinePlaybackHandles:
         source: The planned-path source.
         uplink: The 4 Hz uplink (same system as the online chain's).
         robot: The flexible-joint arm.
-        logs: "sequence_number", "send_time", "q_sent", "state_sent" at the uplink period
-            (a row at t_k shows packet k−1) and the robot's "tracker" (its samples with their
-            measurement times) and "command_rejected" at the tracker period.
+        logs: The loggers, all at the uplink period (a row at t_k shows the state before
+            the tick at t_k): "sequence_number", "send_time", "q_sent", "state_sent" (packet
+            k−1), and the robot's "command_rejected" and "command_ramp" (as set by the
+            interpolator's poll after the previous tick; they change only at polls). The
+            tracker's record is not among them: :func:`simulate_playback` returns it.
         plan: The plan played.
         duration_s: Suggested simulated time: the last packet plus ``scenario.settle_s``
             (and at least one tick more, so the loggers see the last packet), or
@@ -101,7 +114,8 @@ def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q
         states: Optional [q, q̇, q̈, q⃛] per row, (N, J, 4), sent with the packets.
 
     Returns:
-        (source, uplink, robot, logs): ``logs`` as :class:`OfflinePlaybackHandles`.
+        (source, uplink, robot, logs): ``logs`` as :class:`OfflinePlaybackHandles`; the
+        robot's tracker is not in the diagram: run it with :func:`simulate_playback`.
     """
     arm = scenario.arm_description
     period = scenario.uplink.period_s
@@ -115,18 +129,84 @@ def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q
     builder.Connect(source.get_state_planned_output_port(),
                     uplink.get_state_smoothed_input_port())
     # Stage 3: the onboard robot, at rest at the committed pose.
+    # A continuous plant's tracker is sampled after the run, from the integrator's dense
+    # output; a discrete plant has none, and its tracker stays a stage of the diagram.
+    continuous = scenario.onboard.time_step_s == 0.0
     robot = AddOnboardRobot(builder, scenario, initial_position_rad=q_start,
-                            command_period_s=period)
+                            command_period_s=period, tracker_in_diagram=not continuous)
     connect_uplink_to_robot(builder, uplink, robot)
-    logs = {
-        "sequence_number": LogVectorOutput(uplink.get_sequence_number_output_port(), builder,
-                                           period),
-        "send_time": LogVectorOutput(uplink.get_send_time_output_port(), builder, period),
-        "q_sent": LogVectorOutput(uplink.get_q_sent_output_port(), builder, period),
-        "state_sent": LogVectorOutput(uplink.get_state_sent_output_port(), builder, period),
-    }
-    logs.update(add_onboard_loggers(builder, robot, scenario.onboard.tracker.period_s))
+    ports = {"sequence_number": uplink.get_sequence_number_output_port(),
+             "send_time": uplink.get_send_time_output_port(),
+             "q_sent": uplink.get_q_sent_output_port(),
+             "state_sent": uplink.get_state_sent_output_port(),
+             "command_rejected": robot.GetOutputPort("command_rejected"),
+             "command_ramp": robot.GetOutputPort("command_ramp")}
+    logs = {name: LogVectorOutput(port, builder, period) for name, port in ports.items()}
+    if not continuous:
+        logs[_TRACKER_LOG] = LogVectorOutput(robot.GetOutputPort("tracker_measurement"),
+                                             builder, scenario.onboard.tracker.period_s)
     return source, uplink, robot, logs
+
+
+_TRACKER_LOG = "tracker_measurement"
+"""The logger of a discrete plant's tracker in playback (its record is returned as "tracker")."""
+
+
+def tracker_sample_times(period_s: float, duration_s: float) -> np.ndarray:
+    """t_k = k·period for every k with t_k < ``duration_s``, s: the instants at which the
+    tracker's periodic event samples a run that ends at ``duration_s`` (the event at the end
+    itself would fire only if the run went on)."""
+    times = period_s * np.arange(int(math.floor(duration_s / period_s)) + 2)
+    return times[times < duration_s]
+
+
+def simulate_playback(diagram, robot: FlexibleJointArm, loggers: dict, duration_s: float
+                      ) -> tuple[object, dict]:
+    """Runs a playback diagram to ``duration_s`` and takes the tracker's samples.
+
+    The integrator's dense output (cubic Hermite over each step, steps of at most 10 ms) is
+    evaluated at the tracker's instants (:func:`tracker_sample_times`) and the tracker samples
+    the plant's state there (:meth:`~telesmooth.systems.laser_tracker.LaserTracker.Record`).
+    A discrete plant has no dense output: its tracker is a stage of the diagram
+    (:func:`AddPathPlayback` puts it there) and its logged samples are returned.
+
+    Args:
+        diagram: A diagram built with :func:`AddPathPlayback`.
+        robot: Its robot (built with ``tracker_in_diagram=False``).
+        loggers: Its loggers (name → VectorLogSink).
+        duration_s: Simulated time, s (> 0).
+
+    Returns:
+        (simulator, logs): the finished simulator, and ``logs`` as :func:`copy_logs` plus
+        "tracker", a :class:`~telesmooth.systems.laser_tracker.TrackerRecord`.
+    """
+    simulator = make_simulator(diagram, robot.config)
+    simulator.Initialize()
+    if robot.tracker_in_diagram:
+        # A discrete plant (no dense output): the tracker's own event took the samples.
+        simulator.AdvanceTo(float(duration_s))
+        context = simulator.get_context()
+        logs = copy_logs({k: v for k, v in loggers.items() if k != _TRACKER_LOG}, context)
+        logs["tracker"] = tracker_record(loggers[_TRACKER_LOG].FindLog(context).data().T)
+        return simulator, logs
+    integrator = simulator.get_integrator()
+    integrator.StartDenseIntegration()
+    simulator.AdvanceTo(float(duration_s))
+    trajectory = integrator.StopDenseIntegration()
+    times = tracker_sample_times(robot.tracker.config.period_s, float(duration_s))
+    states = trajectory.vector_values(times).T[:, _plant_state_indices(diagram, robot)]
+    logs = copy_logs(loggers, simulator.get_context())
+    logs["tracker"] = robot.tracker.Record(times, states)
+    return simulator, logs
+
+
+def _plant_state_indices(diagram, robot: FlexibleJointArm) -> np.ndarray:
+    """Where the plant's [q; v] sits in the diagram's continuous state vector."""
+    context = diagram.CreateDefaultContext()
+    continuous = context.get_mutable_continuous_state_vector()
+    continuous.SetFromVector(np.arange(continuous.size(), dtype=float))
+    plant = robot.plant
+    return plant.GetPositionsAndVelocities(plant.GetMyContextFromRoot(context)).astype(int)
 
 
 def MakeOfflinePlaybackDiagram(scenario: Scenario, plan: OfflinePlan) -> OfflinePlaybackHandles:
@@ -193,21 +273,15 @@ def run_offline(scenario: Scenario, *, constraint: str = "trajectory", max_veloc
     if not plan.is_valid:
         return plan, None
     handles = MakeOfflinePlaybackDiagram(scenario, plan)
-    simulator = make_simulator(handles.diagram, scenario.onboard)
-    simulator.AdvanceTo(handles.duration_s if duration_s is None else float(duration_s))
-    return plan, copy_logs(handles.logs, simulator.get_context())
+    _, logs = simulate_playback(handles.diagram, handles.robot, handles.logs,
+                                handles.duration_s if duration_s is None else duration_s)
+    return plan, logs
 
 
-def copy_logs(loggers: dict, root_context) -> dict:
-    """Copies each VectorLogSink's log out of a root context: name → :class:`SignalLog`,
-    except "tracker" (:func:`add_onboard_loggers`), which becomes a
-    :class:`~telesmooth.systems.laser_tracker.TrackerRecord`: each sample at the time it
-    was measured, not the time it was logged."""
+def copy_logs(loggers: dict, root_context) -> dict[str, SignalLog]:
+    """Copies each VectorLogSink's log out of a root context: name → :class:`SignalLog`."""
     copies = {}
     for name, logger in loggers.items():
         log = logger.FindLog(root_context)
-        if name == "tracker":
-            copies[name] = tracker_record(log.data().T)
-        else:
-            copies[name] = SignalLog(t_s=log.sample_times().copy(), values=log.data().T.copy())
+        copies[name] = SignalLog(t_s=log.sample_times().copy(), values=log.data().T.copy())
     return copies

@@ -59,7 +59,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from telesmooth.arms.collision import ArmCollisionModel
 from telesmooth.arms.joint_vectors import as_per_joint
-from telesmooth.diagrams.offline_playback import AddPathPlayback, copy_logs
+from telesmooth.diagrams.offline_playback import AddPathPlayback, simulate_playback
 from telesmooth.diagrams.offline_validation import validate_joint_path
 from telesmooth.diagrams.scenario import Scenario, make_haptic_recording
 from telesmooth.diagrams.session_sampling import joint_targets_at_uplink_rate, recording_ticks
@@ -86,7 +86,6 @@ from telesmooth.smoothing.metrics import (
     tracking_errors,
 )
 from telesmooth.smoothing.offline import OFFLINE_SOLVERS, with_rest_history
-from telesmooth.systems.flexible_arm import make_simulator
 
 __all__ = [
     "Comparison",
@@ -448,13 +447,11 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
     smoothed = time.perf_counter()
 
     builder = DiagramBuilder()
-    _, _, _, loggers = AddPathPlayback(builder, scenario, packets, states=packet_states,
-                                       q_start=q_start)
+    _, _, robot, loggers = AddPathPlayback(builder, scenario, packets, states=packet_states,
+                                           q_start=q_start)
     diagram = builder.Build()
     diagram.set_name(f"compare_{label}")
-    simulator = make_simulator(diagram, scenario.onboard)
-    simulator.AdvanceTo(setup.duration_s)
-    logs = copy_logs(loggers, simulator.get_context())
+    _, logs = simulate_playback(diagram, robot, loggers, setup.duration_s)
     simulated = time.perf_counter()
 
     fk = setup.fk

@@ -68,9 +68,13 @@ INTEGRATION_SCHEMES = ("bogacki_shampine3", "runge_kutta3", "runge_kutta5", "rad
 (the fixed-step ones, ``runge_kutta2`` and the Euler methods, are refused: nothing would
 bound their error)."""
 
-MAX_INTEGRATOR_STEP_S = 0.1
-"""The integrator's largest step, s (drake's SimulatorConfig default; the chain's 10 ms events
-bound the steps long before)."""
+MAX_INTEGRATOR_STEP_S = 0.01
+"""The integrator's largest step, s: 10 ms, the period of the laser tracker and of the chain's
+other 100 Hz stages. In a run of the chain their events end a step every 10 ms anyway. A
+playback (``compare``, ``experiment``, the offline mode) takes its tracker samples from the
+integrator's dense output instead, with no event; this cap keeps its steps, and with them its
+accuracy, those of the event-bound run. The error control at ``integration_accuracy`` alone
+lets the steps grow past the 14.7 Hz mode of the lab arm and e move by 3 % (docs/numerics.md)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -350,7 +354,7 @@ class FlexibleJointArm(Diagram):
     """
 
     def __init__(self, config: FlexibleArmConfig = FlexibleArmConfig(), *,
-                 command_period_s: float | None = None):
+                 command_period_s: float | None = None, tracker_in_diagram: bool = True):
         """Builds the diagram.
 
         Args:
@@ -360,6 +364,15 @@ class FlexibleJointArm(Diagram):
                 the robot directly): the interpolator then polls at it, 0.1 ms after each
                 change, instead of every 10 ms (unless ``config.interpolator.poll_period_s``
                 says otherwise). None: 10 ms, the onboard receiver's rate.
+            tracker_in_diagram: True (default): the laser tracker is a stage of the diagram,
+                sampling the plant with its own periodic event. False (a playback whose
+                tracker record is read only after the run): the tracker is built but left
+                out of the diagram, so its samples do not stop the integrator, and the
+                diagram has no tracker ports (``position_measured``, ``q_link``,
+                ``q_motor``, ``tracker_sample_time``, ``tracker_measurement``); its
+                :meth:`LaserTracker.Record` takes the samples afterwards from the plant's
+                states at the sample instants
+                (:func:`~telesmooth.diagrams.offline_playback.simulate_playback`).
 
         Raises:
             ValueError: if ``config`` is not a FlexibleArmConfig. Invalid field values are
@@ -411,18 +424,23 @@ class FlexibleJointArm(Diagram):
                         plant.get_desired_state_input_port(instance))
 
         # Onboard sensors: the 100 Hz laser tracker and the joint encoders.
-        tracker = builder.AddNamedSystem("laser_tracker", LaserTracker(
-            config.tracker, plant=plant, model_instance=instance,
-            joint_names=arm.joint_names, tool_frame_name=arm.tool_frame))
-        builder.Connect(plant.get_state_output_port(), tracker.get_plant_state_input_port())
+        tracker = LaserTracker(config.tracker, plant=plant, model_instance=instance,
+                               joint_names=arm.joint_names, tool_frame_name=arm.tool_frame)
+        tracker.set_name("laser_tracker")
+        if tracker_in_diagram:
+            builder.AddSystem(tracker)
+            builder.Connect(plant.get_state_output_port(),
+                            tracker.get_plant_state_input_port())
 
         builder.ExportInput(interpolator.get_q_commanded_input_port(), "q_commanded")
         builder.ExportInput(interpolator.get_command_time_input_port(), "command_time")
-        builder.ExportOutput(tracker.get_position_measured_output_port(), "position_measured")
-        builder.ExportOutput(tracker.get_q_link_output_port(), "q_link")
-        builder.ExportOutput(tracker.get_q_motor_output_port(), "q_motor")
-        builder.ExportOutput(tracker.get_sample_time_output_port(), "tracker_sample_time")
-        builder.ExportOutput(tracker.get_measurement_output_port(), "tracker_measurement")
+        if tracker_in_diagram:
+            builder.ExportOutput(tracker.get_position_measured_output_port(),
+                                 "position_measured")
+            builder.ExportOutput(tracker.get_q_link_output_port(), "q_link")
+            builder.ExportOutput(tracker.get_q_motor_output_port(), "q_motor")
+            builder.ExportOutput(tracker.get_sample_time_output_port(), "tracker_sample_time")
+            builder.ExportOutput(tracker.get_measurement_output_port(), "tracker_measurement")
         builder.ExportOutput(interpolator.get_command_rejected_output_port(),
                              "command_rejected")
         builder.ExportOutput(interpolator.get_state_desired_output_port(), "state_desired")
@@ -437,6 +455,7 @@ class FlexibleJointArm(Diagram):
         self._model_instance = instance
         self._interpolator = interpolator
         self._tracker = tracker
+        self._tracker_in_diagram = bool(tracker_in_diagram)
 
     # -- accessors ------------------------------------------------------------------------
 
@@ -477,7 +496,13 @@ class FlexibleJointArm(Diagram):
 
     @property
     def tracker(self) -> LaserTracker:
+        """The laser tracker (a stage of this diagram unless built with
+        ``tracker_in_diagram=False``)."""
         return self._tracker
+
+    @property
+    def tracker_in_diagram(self) -> bool:
+        return self._tracker_in_diagram
 
     def SetInitialPositions(self, root_context, q_rad) -> None:
         """Puts the arm at rest at ``q_rad`` in ``root_context`` and makes it hold there.
@@ -507,7 +532,8 @@ class FlexibleJointArm(Diagram):
                 plant_context, 0.0)
         self._plant.SetVelocities(plant_context, self._model_instance,
                                   np.zeros(self._plant.num_velocities(self._model_instance)))
-        self._tracker.Sample(self._tracker.GetMyMutableContextFromRoot(root_context))
+        if self._tracker_in_diagram:
+            self._tracker.Sample(self._tracker.GetMyMutableContextFromRoot(root_context))
 
 
 def make_simulator(diagram, config: FlexibleArmConfig) -> Simulator:

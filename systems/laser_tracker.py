@@ -249,6 +249,34 @@ class LaserTracker(LeafSystem):
     def get_measurement_output_port(self):
         return self._measurement_output
 
+    def Record(self, times_s, plant_states) -> TrackerRecord:
+        """The samples the tracker takes of given plant states at given instants.
+
+        The same computation as the periodic event (forward kinematics of the positions,
+        link and motor angles, sample k's noise from ``(seed, k)``), for states obtained
+        otherwise, e.g. a playback's integrator's dense output evaluated at t_k = k·period
+        (:func:`~telesmooth.diagrams.offline_playback.simulate_playback`).
+
+        Args:
+            times_s: The sample instants t_k, s, (T,), strictly increasing.
+            plant_states: The plant's [q; v] at each instant, (T, plant.num_multibody_states()).
+
+        Raises:
+            ValueError: if the shapes do not match or the instants do not increase.
+        """
+        times = np.asarray(times_s, dtype=float).reshape(-1)
+        states = np.asarray(plant_states, dtype=float)
+        width = self._plant_state_input.size()
+        if states.ndim != 2 or states.shape != (times.size, width):
+            raise ValueError(f"plant_states has shape {states.shape}; expected "
+                             f"({times.size}, {width})")
+        if np.any(np.diff(times) <= 0.0):
+            raise ValueError("times_s must be strictly increasing")
+        rows = np.empty((times.size, 4 + 2 * self._motor_index.size))
+        for row, state, time_s in zip(rows, states, times):
+            row[:] = self._sample(state, float(time_s))
+        return tracker_record(rows)
+
     def Sample(self, context) -> None:
         """Takes a sample of ``plant_state`` now, as the periodic event would, into ``context``.
 

@@ -10,7 +10,6 @@ import dataclasses
 
 import numpy as np
 import pytest
-from pydrake.systems.analysis import Simulator
 
 from telesmooth.arms.collision import ArmCollisionModel
 from telesmooth.arms.planar import (
@@ -22,14 +21,17 @@ from telesmooth.arms.planar import (
 from telesmooth.arms.workspace import AIR_BEARING_WORKSPACE, BoxObstacle, Workspace
 from telesmooth.diagrams import offline_planning
 from telesmooth.diagrams.offline_planning import plan_offline
-from telesmooth.diagrams.offline_playback import MakeOfflinePlaybackDiagram, run_offline
+from telesmooth.diagrams.offline_playback import (
+    MakeOfflinePlaybackDiagram,
+    run_offline,
+    simulate_playback,
+)
 from telesmooth.diagrams.offline_validation import validate_joint_path
 from telesmooth.diagrams.scenario import load_scenario, make_haptic_recording
 from telesmooth.smoothing.kalman import rest_start_prior
 from telesmooth.smoothing.metrics import VIOLATION_RTOL
 from telesmooth.smoothing.model import JerkModel
 from telesmooth.smoothing.offline import OfflineCksResult, solve_offline_cks
-from telesmooth.systems.laser_tracker import tracker_record
 
 SESSION = ("{haptic: {source: synthetic, synthetic: {duration_s: 8.0, hold_start_s: 1.0, "
            "hold_end_s: 1.0}}, settle_s: 1.0}")
@@ -223,8 +225,8 @@ def test_playback_sends_the_planned_samples_at_4_hz_and_the_robot_follows(scenar
     handles = MakeOfflinePlaybackDiagram(scenario, plan)
     assert handles.diagram.get_name() == "offline_playback"
     assert handles.duration_s == pytest.approx(plan.t_s[-1] + scenario.settle_s)
-    simulator = Simulator(handles.diagram)
-    simulator.AdvanceTo(handles.duration_s)
+    simulator, copied = simulate_playback(handles.diagram, handles.robot, handles.logs,
+                                          handles.duration_s)
     context = simulator.get_context()
     assert context.get_time() == pytest.approx(handles.duration_s)
     seq = handles.logs["sequence_number"].FindLog(context)
@@ -247,7 +249,7 @@ def test_playback_sends_the_planned_samples_at_4_hz_and_the_robot_follows(scenar
             np.testing.assert_array_equal(states[m, 3:6], plan.states_planned[k, :, 1])
     # The robot accepted every command and ends on the last (rest) pose.
     assert np.all(handles.logs["command_rejected"].FindLog(context).data() == 0.0)
-    q_link = tracker_record(handles.logs["tracker"].FindLog(context).data().T).q_link
+    q_link = copied["tracker"].q_link
     assert np.abs(q_link[-1] - plan.q_planned[-1]).max() < 0.01
     assert np.abs(q_link[0] - plan.q_start).max() < 1e-9
 

@@ -82,10 +82,11 @@ def test_make_simulator_applies_the_configured_integrator():
     diagram = _sine_integral()
     default = make_simulator(diagram, FlexibleArmConfig())
     assert default.get_integrator().get_target_accuracy() == 1e-3
-    assert default.get_integrator().get_maximum_step_size() == 0.1
+    # Steps of at most 10 ms, the tracker's period (a playback's steps are not ended by it).
+    assert default.get_integrator().get_maximum_step_size() == 0.01
     # The same run as an independently configured Bogacki–Shampine integrator, step for step.
     by_hand = Simulator(diagram)
-    ResetIntegratorFromFlags(by_hand, "bogacki_shampine3", 0.1).set_target_accuracy(1e-3)
+    ResetIntegratorFromFlags(by_hand, "bogacki_shampine3", 0.01).set_target_accuracy(1e-3)
     x, evaluations = _run(default)
     assert (x, evaluations) == _run(by_hand)
     assert x == pytest.approx((1.0 - np.cos(6.0)) / 3.0, rel=1e-2)     # the closed form
