@@ -559,8 +559,9 @@ def _experiment_scenario(shape: str, demo: int, time_step_s: float | None):
 
 
 def _experiment_cell(shape: str, demo: int, time_step_s: float | None) -> dict:
-    """Every method on one demonstration, as the experiment runs each task (the IK pass once,
-    as one worker does for the tasks of a demonstration it has already seen)."""
+    """Every method on one demonstration, as the experiment runs a demonstration's tasks
+    (``run_task_group``): the IK pass and the setup once, a plant run shared by the methods
+    that send the same packets."""
     from telesmooth.diagrams.scenario import make_haptic_recording
     from telesmooth.smoothing.methods import METHODS
     from telesmooth.studies.comparison import (
@@ -575,14 +576,16 @@ def _experiment_cell(shape: str, demo: int, time_step_s: float | None) -> dict:
     samples = operator_samples(scenario)
     ik_cpu_s = time.process_time() - started
     methods = {}
+    setup = prepare_comparison(scenario, samples)
+    playbacks = {}
     for method in METHODS:
         wall, cpu = time.perf_counter(), time.process_time()
-        setup = prepare_comparison(scenario, samples)
-        run = run_method(setup, method)
+        run = run_method(setup, method, playbacks=playbacks)
         methods[method] = {"cpu_s": time.process_time() - cpu,
                            "wall_s": time.perf_counter() - wall,
                            "smooth_s": run.timings_s["smooth"],
                            "simulate_s": run.timings_s["simulate"],
+                           "playback_reused": run.playback_reused,
                            "e_mean_m": run.metrics["response_error_m"]["mean"]}
     return {"shape": shape, "demo": demo, "time_step_s": time_step_s,
             "recording_s": float(recording.t_s[-1] - recording.t_s[0]),
@@ -621,12 +624,12 @@ def extrapolate_experiment(sample: list[dict], c8_cpu_s: dict, lengths: dict,
 
     Model (stated, not fitted beyond it): a task's CPU time is proportional to the seconds
     it simulates, at each method's own rate measured on the sample (CPU seconds per
-    simulated second, pooled over the sample's demonstrations); a demonstration simulates
-    its recording plus the same offset as the sample's (settling, the fixed-lag delay, the
-    ramp); each worker runs the IK pass of a demonstration once per demonstration it sees
-    (counted twice per demonstration: both workers); C8 tasks scale with the shape's
-    recordings. Tasks are spread evenly over the workers (Dask's scheduling overhead and
-    idle ends are not counted): wall ≈ CPU / workers.
+    simulated second, pooled over the sample's demonstrations; a method that reused another's
+    plant run on the sample counts as cheap as it was there); a demonstration simulates its
+    recording plus the same offset as the sample's (settling, the fixed-lag delay, the ramp);
+    the IK pass runs once per demonstration (its tasks run together); C8 tasks scale with
+    the shape's recordings. Tasks are spread evenly over the workers (Dask's scheduling
+    overhead and idle ends are not counted): wall ≈ CPU / workers.
     """
     from telesmooth.studies.experiment import ExperimentConfig, make_tasks
 
@@ -652,7 +655,7 @@ def extrapolate_experiment(sample: list[dict], c8_cpu_s: dict, lengths: dict,
             demos_seen.add((task.shape, task.demo))
         by_kind[task.study if task.kind == "run" else "c8"] += seconds
         total += seconds
-    ik = workers * ik_rate * sum(lengths[f"{s}/{d}"] for s, d in demos_seen)
+    ik = ik_rate * sum(lengths[f"{s}/{d}"] for s, d in demos_seen)
     total += ik
     return {"num_tasks": len(tasks), "cpu_s": total, "workers": workers,
             "wall_s": total / workers, "cpu_s_by_study": dict(by_kind), "ik_cpu_s": ik,

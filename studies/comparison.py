@@ -136,6 +136,8 @@ class MethodRun:
         operator_error_m: ‖FK(z_i) − x^A‖ per operator sample, m, (N,).
         metrics: JSON-ready figures (see the module docstring).
         timings_s: "smooth" and "simulate" wall-clock times, s.
+        playback_reused: True when the plant run is an earlier method's, whose packets
+            were the same to the bit (see ``playbacks`` of :func:`run_method`).
     """
 
     method: str
@@ -151,6 +153,7 @@ class MethodRun:
     operator_error_m: np.ndarray
     metrics: dict
     timings_s: dict
+    playback_reused: bool = False
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -400,7 +403,7 @@ def response_latency(operator_tool_m, t_s, tracker_t_s, tool_position_m, *,
 
 def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettings | None = None,
                base_method: str | None = None, label: str | None = None,
-               offline_solver: str = "drake") -> MethodRun:
+               offline_solver: str = "drake", playbacks: dict | None = None) -> MethodRun:
     """Smooths the operator's samples with one method and plays the packets through the plant.
 
     Args:
@@ -411,6 +414,13 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
             sensitivity study of Online-CKS); both default to :func:`method_settings`.
         label: The run's name (default ``method``).
         offline_solver: Solver of the Offline-CKS methods (see :func:`method_settings`).
+        playbacks: A dict kept by the caller across the methods of one ``setup`` (start it
+            empty): each plant run is stored in it under the exact packets played (their
+            bytes, with the states sent beside them), and a method whose packets equal an
+            earlier one's to the bit reuses that run instead of simulating it again. The
+            playback is deterministic, so every figure is the same as a new run's (several
+            methods often send the same packets: e.g. Offline-CKS and the Kalman smoother
+            when no limit binds). None: every method is simulated.
 
     Returns:
         The run; ``metrics["improvement_ratio_percent"]`` is NaN until the caller sets it
@@ -446,12 +456,19 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
     packets = packet_states[:, :, 0]
     smoothed = time.perf_counter()
 
-    builder = DiagramBuilder()
-    _, _, robot, loggers = AddPathPlayback(builder, scenario, packets, states=packet_states,
-                                           q_start=q_start)
-    diagram = builder.Build()
-    diagram.set_name(f"compare_{label}")
-    _, logs = simulate_playback(diagram, robot, loggers, setup.duration_s)
+    key = _playback_key(setup, packet_states)
+    reused = playbacks is not None and key in playbacks
+    if reused:
+        logs = playbacks[key]
+    else:
+        builder = DiagramBuilder()
+        _, _, robot, loggers = AddPathPlayback(builder, scenario, packets, states=packet_states,
+                                               q_start=q_start)
+        diagram = builder.Build()
+        diagram.set_name(f"compare_{label}")
+        _, logs = simulate_playback(diagram, robot, loggers, setup.duration_s)
+        if playbacks is not None:
+            playbacks[key] = _read_only(logs)
     simulated = time.perf_counter()
 
     fk = setup.fk
@@ -512,7 +529,23 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
         method=label, delay_ticks=delay, estimate=estimate, packets=packets,
         t_s=period * np.arange(len(packets)), tracker_t_s=tracker_t, tool_position_m=tool,
         q_link=tracker.q_link, q_motor=tracker.q_motor, response_error_m=e,
-        operator_error_m=e_operator, metrics=metrics, timings_s=timings)
+        operator_error_m=e_operator, metrics=metrics, timings_s=timings,
+        playback_reused=reused)
+
+
+def _playback_key(setup: ComparisonSetup, packet_states: np.ndarray) -> tuple:
+    """What a playback depends on besides the setup: the packets with their states, exactly."""
+    states = np.ascontiguousarray(packet_states, dtype=float)
+    return (states.shape, states.tobytes(), setup.q_start.tobytes(), setup.duration_s)
+
+
+def _read_only(logs: dict) -> dict:
+    """The playback's logs with every array read-only (the runs that reuse them share them)."""
+    for record in logs.values():
+        for value in vars(record).values():
+            if isinstance(value, np.ndarray):
+                value.flags.writeable = False
+    return logs
 
 
 def set_improvement_ratios(runs: dict, reference: str = _REFERENCE) -> None:
@@ -560,11 +593,14 @@ def compare_methods(scenario: Scenario, methods=METHODS, *,
     say = progress or (lambda message: None)
     setup = prepare_comparison(scenario)
     runs = {}
+    playbacks = {}
     for number, method in enumerate(methods, start=1):
-        run = run_method(setup, method, offline_solver=offline_solver)
+        run = run_method(setup, method, offline_solver=offline_solver, playbacks=playbacks)
         runs[method] = run
         set_improvement_ratios({_REFERENCE: runs[_REFERENCE], method: run})
+        played = ("the same packets as an earlier method: its plant run reused"
+                  if run.playback_reused else
+                  f"{setup.duration_s:.1f} s simulated in {run.timings_s['simulate']:.1f} s")
         say(f"[{number}/{len(methods)}] {method}: smoothed in {run.timings_s['smooth']:.2f} s, "
-            f"{setup.duration_s:.1f} s simulated in {run.timings_s['simulate']:.1f} s; "
-            f"P = {run.metrics['improvement_ratio_percent']:.1f} %")
+            f"{played}; P = {run.metrics['improvement_ratio_percent']:.1f} %")
     return Comparison(setup=setup, runs=runs)

@@ -28,7 +28,10 @@ almost every demonstration (the report gives the fraction).
 
 Tasks are independent and deterministic: the same task gives the same figures on any worker, and
 :func:`run_experiment` orders the results by task, so the output does not depend on the number
-of workers (``tests/test_experiment.py``). Tasks run on Dask (``dask.distributed``): a local
+of workers (``tests/test_experiment.py``). The tasks of one demonstration run together
+(:func:`run_task_group`): one IK pass, and one plant run for the methods that send the same
+packets to the bit (the playback is deterministic, so each record is the one its task gives
+alone). Groups run on Dask (``dask.distributed``): a local
 cluster of worker processes by default (bound to 127.0.0.1, no dashboard: only the scheduler's
 health/metrics HTTP endpoint, on 127.0.0.1), an existing cluster
 given its scheduler address, or in this process (``workers=0``).
@@ -43,7 +46,7 @@ import dataclasses
 import math
 import time
 import zlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -72,6 +75,9 @@ __all__ = [
     "make_tasks",
     "run_experiment",
     "run_task",
+    "iter_task_group",
+    "run_task_group",
+    "task_groups",
 ]
 
 KF_FORMS = ("kf", "kf-predictor")
@@ -341,7 +347,64 @@ def _c8_record(base: Scenario, config: ExperimentConfig, task: ExperimentTask) -
 
 def run_task(task: ExperimentTask, base: Scenario, config: ExperimentConfig) -> dict:
     """Runs one cell; the record is JSON-ready and depends only on the task (not the worker)."""
-    started = time.perf_counter()
+    return run_task_group([task], base, config)[0]
+
+
+def _group_key(task: ExperimentTask) -> tuple:
+    """Tasks with the same key play the same demonstration in the same scenario."""
+    return (task.kind, task.plant, task.speed, task.shape, task.demo, task.seed)
+
+
+def task_groups(tasks: Sequence[ExperimentTask]) -> list[list[ExperimentTask]]:
+    """The tasks grouped by demonstration (plant, speed, shape, demonstration, seed), in the
+    order of each group's first task; a C8 task is a group of its own. The tasks of a group
+    share one IK pass, one setup and the plant runs of identical packets
+    (:func:`run_task_group`)."""
+    groups: dict[tuple, list] = {}
+    for task in tasks:
+        key = (task.index,) if task.kind == "c8" else _group_key(task)
+        groups.setdefault(key, []).append(task)
+    return list(groups.values())
+
+
+def run_task_group(tasks: Sequence[ExperimentTask], base: Scenario,
+                   config: ExperimentConfig) -> list[dict]:
+    """Runs tasks of one demonstration (one group of :func:`task_groups`), returning their
+    records in order (:func:`iter_task_group`)."""
+    return list(iter_task_group(tasks, base, config))
+
+
+def iter_task_group(tasks: Sequence[ExperimentTask], base: Scenario,
+                    config: ExperimentConfig) -> Iterator[dict]:
+    """Runs tasks of one demonstration (one group of :func:`task_groups`), yielding each
+    record as soon as its task is done.
+
+    The operator's samples and the comparison setup are computed once, and a method whose
+    packets equal an earlier method's to the bit reuses its plant run (``playbacks`` of
+    :func:`~telesmooth.studies.comparison.run_method`): every record is the one
+    :func:`run_task` gives for its task alone.
+
+    Raises:
+        ValueError: If the tasks are not of one demonstration.
+    """
+    tasks = list(tasks)
+    if len({_group_key(t) for t in tasks}) > 1 or (
+            len(tasks) > 1 and any(t.kind == "c8" for t in tasks)):
+        raise ValueError("run_task_group: the tasks must be of one demonstration "
+                         f"({sorted({t.key for t in tasks})[:3]} ...)")
+    setup = None
+    playbacks: dict = {}
+    for task in tasks:
+        started = time.perf_counter()
+        if task.kind == "run" and setup is None:
+            scenario = experiment_scenario(base, config, task.shape, task.demo, task.seed,
+                                           plant=task.plant, speed=task.speed)
+            setup = prepare_comparison(scenario, _samples(scenario))
+        yield _task_record(task, base, config, setup, playbacks, started)
+
+
+def _task_record(task: ExperimentTask, base: Scenario, config: ExperimentConfig, setup,
+                 playbacks: dict, started: float) -> dict:
     record = {"index": task.index, "key": task.key, "kind": task.kind, "shape": task.shape,
               "demo": task.demo, "method": task.method, "label": task.label,
               "study": task.study, "value": None if math.isnan(task.value) else task.value,
@@ -349,13 +412,11 @@ def run_task(task: ExperimentTask, base: Scenario, config: ExperimentConfig) -> 
     if task.kind == "c8":
         record["c8"] = _c8_record(base, config, task)
     else:
-        scenario = experiment_scenario(base, config, task.shape, task.demo, task.seed,
-                                       plant=task.plant, speed=task.speed)
-        setup = prepare_comparison(scenario, _samples(scenario))
+        scenario = setup.scenario
         base_method, settings = _settings(setup, task, config.offline_solver)
         try:
             run = run_method(setup, task.method, settings=settings, base_method=base_method,
-                             label=task.label)
+                             label=task.label, playbacks=playbacks)
         except (RuntimeError, ValueError, ArithmeticError) as error:
             # A method that fails on one demonstration is a finding, reported with the
             # others; it does not end the grid.
@@ -369,6 +430,7 @@ def run_task(task: ExperimentTask, base: Scenario, config: ExperimentConfig) -> 
             record["plant_modes"] = plant_modes(scenario.onboard.arm_description,
                                                 setup.q_start).as_dict(3)
         record["simulated_s"] = setup.duration_s
+        record["playback_reused"] = run.playback_reused
         if task.method == "online-cks":
             # Where this run sits on each axis of the sensitivity study.
             sigma0 = np.asarray(settings.sigma, dtype=float)
@@ -429,9 +491,12 @@ def run_experiment(base: Scenario, config: ExperimentConfig, *, workers: int = 2
 
     if not tasks:
         return []
+    # One unit of work per demonstration: one IK pass, one setup, shared plant runs.
+    groups = task_groups(tasks)
     if scheduler is None and workers == 0:
-        for task in tasks:
-            finished(run_task(task, base, config))
+        for group in groups:
+            for record in iter_task_group(group, base, config):
+                finished(record)
         return [records[t.index] for t in tasks]
     if workers < 0:
         raise ValueError(f"workers = {workers!r} must be >= 0")
@@ -440,22 +505,30 @@ def run_experiment(base: Scenario, config: ExperimentConfig, *, workers: int = 2
     except ImportError as error:
         raise ImportError("the experiment runs on Dask: pip install 'telesmooth[bench]' (or "
                           "dask[distributed]); workers=0 runs without it") from error
+    import dask
+
     cluster = None
     if scheduler is None:
         # Worker processes on this host only; no dashboard (the scheduler still serves its
-        # health/metrics endpoint, on 127.0.0.1 like everything else here).
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               host="127.0.0.1", dashboard_address=None)
+        # health/metrics endpoint, on 127.0.0.1 like everything else here). No statistical
+        # profiler in the workers: it samples every task's stack every 10 ms, which cost
+        # 10 % of the experiment's time (docs/numerics.md).
+        with dask.config.set({"distributed.worker.profile.enabled": False}):
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   host="127.0.0.1", dashboard_address=None)
         client = Client(cluster)
     else:
         client = Client(scheduler)
     try:
-        # Long tasks first (C8 runs seven demonstrations) so the tail of the run is short.
-        order = sorted(tasks, key=lambda t: t.kind != "c8")
-        futures = [client.submit(run_task, task, base, config, pure=False,
-                                 key=f"telesmooth-experiment-{task.index}") for task in order]
+        # Long groups first (C8 runs seven demonstrations, a demonstration's group every
+        # method) so the tail of the run is short.
+        order = sorted(groups, key=lambda group: (group[0].kind != "c8", -len(group)))
+        futures = [client.submit(run_task_group, group, base, config, pure=False,
+                                 key=f"telesmooth-experiment-{group[0].index}")
+                   for group in order]
         for future in as_completed(futures):
-            finished(future.result())
+            for record in future.result():
+                finished(record)
     finally:
         client.close()
         if cluster is not None:

@@ -212,3 +212,27 @@ def test_cli_unknown_method_exits_2(tmp_path, capsys):
     code = main(["compare", "--methods", "original,fastest", "--out", str(tmp_path / "x")])
     assert code == 2
     assert "'fastest'" in capsys.readouterr().err
+
+
+def test_a_method_whose_packets_were_played_already_reuses_that_plant_run(scenario):
+    from telesmooth.studies.comparison import prepare_comparison, run_method
+
+    setup = prepare_comparison(scenario)
+    fresh = run_method(setup, "online-cks")
+    playbacks = {}
+    first = run_method(setup, "online-cks", playbacks=playbacks)
+    again = run_method(setup, "online-cks", playbacks=playbacks)
+    other = run_method(setup, "original", playbacks=playbacks)
+    assert (first.playback_reused, again.playback_reused, other.playback_reused) == (
+        False, True, False)
+    assert len(playbacks) == 2
+    for run in (first, again):
+        np.testing.assert_array_equal(run.response_error_m, fresh.response_error_m)
+        np.testing.assert_array_equal(run.tool_position_m, fresh.tool_position_m)
+        assert {k: v for k, v in run.metrics.items() if k != "timings_s"} == {
+            k: v for k, v in fresh.metrics.items() if k != "timings_s"}
+    # A different packet stream is simulated: not the reused figures.
+    assert other.metrics["response_error_m"] != again.metrics["response_error_m"]
+    # The shared record cannot be changed through one of the runs that hold it.
+    with pytest.raises(ValueError, match="read-only"):
+        again.tool_position_m[0, 0] = 1.0

@@ -378,7 +378,8 @@ def test_cli_writes_the_report_and_names_bad_shapes(tmp_path, capsys):
 
 
 def _fake_run_task(calls, stop_after=None):
-    """A stand-in for run_task with the record layout of a real one, instant."""
+    """A stand-in for the runner of a demonstration's tasks (``iter_task_group``), with the
+    record layout of a real one, instant."""
     from telesmooth.studies import experiment
 
     def fake(task, base, config):
@@ -391,7 +392,11 @@ def _fake_run_task(calls, stop_after=None):
                 "study": task.study, "seed": task.seed, "plant": task.plant,
                 "speed": task.speed, "wall_s": 0.0}
 
-    return experiment, fake
+    def fake_group(tasks, base, config):
+        for task in tasks:
+            yield fake(task, base, config)
+
+    return experiment, fake_group
 
 
 def _grid():
@@ -406,7 +411,7 @@ def test_an_interrupted_run_resumes_where_it_stopped(base, tmp_path, monkeypatch
     tasks = make_tasks(config)
     calls = []
     module, fake = _fake_run_task(calls, stop_after=5)
-    monkeypatch.setattr(module, "run_task", fake)
+    monkeypatch.setattr(module, "iter_task_group", fake)
     with pytest.raises(KeyboardInterrupt):
         write_experiment_report(out, base, config, workers=0, progress=lambda line: None)
     assert len(read_records(out)) == 5
@@ -414,7 +419,7 @@ def test_an_interrupted_run_resumes_where_it_stopped(base, tmp_path, monkeypatch
         handle.write('{"key": "cut sh')            # a line the stop cut short
     calls.clear()
     module, fake = _fake_run_task(calls)
-    monkeypatch.setattr(module, "run_task", fake)
+    monkeypatch.setattr(module, "iter_task_group", fake)
     lines = []
     write_experiment_report(out, base, config, workers=0, progress=lines.append)
     assert calls == [t.key for t in tasks[5:]]    # only what was not done
@@ -433,7 +438,7 @@ def test_a_folder_of_another_grid_is_refused(base, tmp_path, monkeypatch, capsys
 
     out = tmp_path / "exp"
     module, fake = _fake_run_task([])
-    monkeypatch.setattr(module, "run_task", fake)
+    monkeypatch.setattr(module, "iter_task_group", fake)
     write_experiment_report(out, base, _grid(), workers=0, progress=lambda line: None)
     held = (out / "records.jsonl").read_bytes()
     with pytest.raises(ValueError, match=r"another experiment \(it differs in: speeds\)"):
@@ -465,7 +470,7 @@ def test_shards_merge_into_the_report_of_the_whole_grid(base, tmp_path, monkeypa
 
     config = _grid()
     module, fake = _fake_run_task([])
-    monkeypatch.setattr(module, "run_task", fake)
+    monkeypatch.setattr(module, "iter_task_group", fake)
     quiet = {"progress": lambda line: None}
     write_experiment_report(tmp_path / "whole", base, config, workers=0, **quiet)
     for part in (1, 2):
@@ -534,7 +539,7 @@ def test_two_runs_on_one_folder_are_refused(base, tmp_path, monkeypatch):
     from telesmooth.scripts.experiment_report import _FolderLock, write_experiment_report
 
     module, fake = _fake_run_task([])
-    monkeypatch.setattr(module, "run_task", fake)
+    monkeypatch.setattr(module, "iter_task_group", fake)
     out = tmp_path / "exp"
     out.mkdir()
     with _FolderLock(out):            # another run holds the folder
@@ -556,3 +561,56 @@ def test_the_experiment_runs_the_plant_that_simulate_and_compare_run(base):
     assert stepped.onboard.time_step_s == 0.005
     assert experiment_scenario(base, small_config(plant_time_step_s=0.0), "Angle", 0) \
         .onboard.time_step_s == 0.0
+
+
+# --- one unit of work per demonstration -------------------------------------------------------
+
+# Limits that never bind: several methods then send the same packets to the bit.
+LOOSE = ("{haptic: {lasa_mapping: {time_scale: 4.0, hold_start_s: 0.5, hold_end_s: 1.0}}, "
+         "smoother: {max_acceleration_rad_per_s2: 100.0, max_jerk_rad_per_s3: 1000.0}}")
+
+
+def test_tasks_are_grouped_by_demonstration():
+    from telesmooth.studies.experiment import task_groups
+
+    config = small_config(demos=(0, 1), sensitivity_shapes=("Angle",), c8_shapes=("Angle",),
+                          speeds=(1.0, 2.5))
+    tasks = make_tasks(config)
+    groups = task_groups(tasks)
+    assert sorted(t.index for group in groups for t in group) == [t.index for t in tasks]
+    for group in groups:
+        assert len({(t.kind, t.plant, t.speed, t.shape, t.demo, t.seed) for t in group}) == 1
+        assert [t.index for t in group] == sorted(t.index for t in group)
+        if group[0].kind == "c8":
+            assert len(group) == 1
+    # Per speed: demonstration 0 (main table + sensitivity study), demonstration 1, C8.
+    assert len(groups) == 2 * 3
+    demo0 = next(g for g in groups if (g[0].speed, g[0].demo, g[0].kind) == (1.0, 0, "run"))
+    assert {t.study for t in demo0} == {"main", "reference", "sigma0", "sigma_min", "rho"}
+
+
+def test_a_group_gives_each_task_the_record_it_gets_alone_and_reuses_equal_packets():
+    from telesmooth.studies.experiment import run_task, run_task_group
+
+    base = load_scenario(scenario_text=LOOSE)
+    config = small_config(methods=("original", "offline-ks", "offline-cks", "online-cks",
+                                   "online-hard", "bmfls"))
+    tasks = make_tasks(config)
+    grouped = run_task_group(tasks, base, config)
+    alone = [run_task(task, base, config) for task in tasks]
+    assert strip_timing(grouped) == [{**r, "playback_reused": r2["playback_reused"]}
+                                     for r, r2 in zip(strip_timing(alone), grouped)]
+    assert not any(r["playback_reused"] for r in alone)
+    reused = {r["label"] for r in grouped if r["playback_reused"]}
+    # Offline-CKS is the Kalman smoother when no limit binds; BMFLS sends what one of the
+    # online smoothers sends. Their figures are those of their own simulations (above).
+    assert reused == {"offline-cks", "bmfls"}
+
+
+def test_a_group_is_one_demonstration():
+    from telesmooth.studies.experiment import run_task_group
+
+    config = small_config(demos=(0, 1))
+    tasks = make_tasks(config)
+    with pytest.raises(ValueError, match="must be of one demonstration"):
+        run_task_group(tasks, load_scenario(scenario_text=FAST), config)
