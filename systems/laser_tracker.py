@@ -272,10 +272,14 @@ class LaserTracker(LeafSystem):
                              f"({times.size}, {width})")
         if np.any(np.diff(times) <= 0.0):
             raise ValueError("times_s must be strictly increasing")
-        rows = np.empty((times.size, 4 + 2 * self._motor_index.size))
-        for row, state, time_s in zip(rows, states, times):
-            row[:] = self._sample(state, float(time_s))
-        return tracker_record(rows)
+        positions = states[:, : self._num_positions]
+        q_motor = positions[:, self._motor_index]
+        tool = np.array([self._tool_position(row) for row in positions]).reshape(-1, 3)
+        if self._config.noise_m > 0.0:
+            tool += np.array([self._noise(float(t)) for t in times]).reshape(-1, 3)
+        return TrackerRecord(t_s=times.copy(), tool_position_m=tool,
+                             q_link=q_motor + positions[:, self._deflection_index],
+                             q_motor=q_motor)
 
     def Sample(self, context) -> None:
         """Takes a sample of ``plant_state`` now, as the periodic event would, into ``context``.
@@ -301,16 +305,23 @@ class LaserTracker(LeafSystem):
         q_motor = sample[4 + n:]
         q_motor[:] = positions[self._motor_index]
         np.add(q_motor, positions[self._deflection_index], out=sample[4:4 + n])   # q_link
-        # The tool point depends on the positions only (the scratch context's velocities
-        # are never read).
-        self._plant.SetPositions(self._plant_context, positions)
-        sample[1:4] = self._plant.CalcPointsPositions(
-            self._plant_context, self._tool_frame, self._tool_origin, self._world_frame)[:, 0]
+        sample[1:4] = self._tool_position(positions)
         if self._config.noise_m > 0.0:
-            k = int(round(time_s / self._config.period_s))
-            rng = np.random.default_rng([self._config.seed, k])
-            sample[1:4] += self._config.noise_m * rng.standard_normal(3)
+            sample[1:4] += self._noise(time_s)
         return sample
+
+    def _tool_position(self, positions) -> np.ndarray:
+        """p_WT of the plant's positions, m, (3,). The tool point depends on the positions
+        only (the scratch context's velocities are never read)."""
+        self._plant.SetPositions(self._plant_context, positions)
+        return self._plant.CalcPointsPositions(
+            self._plant_context, self._tool_frame, self._tool_origin, self._world_frame)[:, 0]
+
+    def _noise(self, time_s: float) -> np.ndarray:
+        """Sample k's noise, k = round(t_k/period): σ·N(0, I₃) from ``default_rng([seed, k])``."""
+        k = int(round(time_s / self._config.period_s))
+        rng = np.random.default_rng([self._config.seed, k])
+        return self._config.noise_m * rng.standard_normal(3)
 
     def _update_sample(self, context, discrete_state) -> None:
         discrete_state.get_mutable_vector(self._measurement_state).SetFromVector(self._sample(
