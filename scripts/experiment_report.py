@@ -318,8 +318,11 @@ def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figure
     lines = [
         "# telesmooth experiment: the paper's claims on real human demonstrations",
         "",
-        f"{meta['num_tasks']} tasks ({meta['num_runs']} simulations of the chain); this run "
-        f"computed {meta['computed']} of them on {meta['workers']} in {meta['wall_s']:.0f} s"
+        f"{meta['num_tasks']} tasks ({meta['num_runs']} simulations of the chain"
+        + (f"; {meta['reused']} of them sent the same packets as another method of their "
+           "demonstration and reuse its plant run" if meta.get("reused") else "")
+        + f"); this run computed {meta['computed']} of them on {meta['workers']} in "
+        f"{meta['wall_s']:.0f} s"
         + (f", the others were kept from earlier runs ({meta['kept']})" if meta['kept'] else "")
         + f". Shapes: {len(config.shapes)}, demonstrations {list(config.demos)} of each; "
         f"cells (plant × speed): {', '.join(summaries)}; sensitivity on "
@@ -606,6 +609,7 @@ def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, 
               for cell, summary in summaries.items()}
     mapping = base.haptic.lasa_mapping
     meta = {**meta, "num_tasks": len(tasks), "num_runs": sum(t.kind == "run" for t in tasks),
+            "reused": sum(bool(r.get("playback_reused")) for r in records),
             "missing": missing,
             "mapping": ", ".join(f"{f.name} = {getattr(mapping, f.name)}"
                                  for f in dataclasses.fields(mapping)),

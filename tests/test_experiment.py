@@ -614,3 +614,23 @@ def test_a_group_is_one_demonstration():
     tasks = make_tasks(config)
     with pytest.raises(ValueError, match="must be of one demonstration"):
         run_task_group(tasks, load_scenario(scenario_text=FAST), config)
+
+
+def test_the_report_says_how_many_plant_runs_were_reused(base, tmp_path, monkeypatch):
+    from telesmooth.scripts.experiment_report import write_experiment_report
+
+    calls = []
+    module, fake_group = _fake_run_task(calls)
+
+    def reusing(tasks, base, config):
+        for record in fake_group(tasks, base, config):
+            yield {**record, "playback_reused": record["method"] == "bmfls"}
+
+    monkeypatch.setattr(module, "iter_task_group", reusing)
+    config = _grid()
+    report = write_experiment_report(tmp_path / "exp", base, config, workers=0,
+                                     progress=lambda line: None)
+    bmfls = sum(t.method == "bmfls" for t in make_tasks(config))
+    assert f"; {bmfls} of them sent the same packets as another method" in report.read_text()
+    data = json.loads((tmp_path / "exp" / "experiment.json").read_text())
+    assert data["meta"]["reused"] == bmfls
