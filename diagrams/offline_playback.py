@@ -22,7 +22,9 @@ t_k = k·period (t_k before the run's end) and with the same computation as its 
 (:meth:`~telesmooth.systems.laser_tracker.LaserTracker.Record`). Without a 100 Hz event the
 integrator no longer stops every 10 ms, which was 40 % of a playback's time; its steps stay
 capped at 10 ms (:data:`~telesmooth.systems.flexible_arm.MAX_INTEGRATOR_STEP_S`), so the
-accuracy is that of the event-bound run (``tests/test_playback_tracker.py`` compares the two).
+accuracy is that of the event-bound run (``tests/test_playback_tracker.py`` compares the two;
+the steps are no longer than before, but they no longer end at the sample instants, which the
+cubic interpolation reaches within the integration error).
 A discrete plant (``onboard.time_step_s`` > 0) has no dense output; its tracker stays in the
 diagram and samples with its own event.
 """
@@ -82,7 +84,8 @@ class OfflinePlaybackHandles:
             the tick at t_k): "sequence_number", "send_time", "q_sent", "state_sent" (packet
             k−1), and the robot's "command_rejected" and "command_ramp" (as set by the
             interpolator's poll after the previous tick; they change only at polls). The
-            tracker's record is not among them: :func:`simulate_playback` returns it.
+            tracker's record is not among them (a discrete plant's playback also logs
+            "tracker_measurement", its tracker's event): :func:`simulate_playback` returns it.
         plan: The plan played.
         duration_s: Suggested simulated time: the last packet plus ``scenario.settle_s``
             (and at least one tick more, so the loggers see the last packet), or
@@ -114,8 +117,9 @@ def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q
         states: Optional [q, q̇, q̈, q⃛] per row, (N, J, 4), sent with the packets.
 
     Returns:
-        (source, uplink, robot, logs): ``logs`` as :class:`OfflinePlaybackHandles`; the
-        robot's tracker is not in the diagram: run it with :func:`simulate_playback`.
+        (source, uplink, robot, logs): ``logs`` as :class:`OfflinePlaybackHandles`. Run the
+        diagram with :func:`simulate_playback`, which returns the tracker's record (with the
+        continuous plant the tracker is not a stage of the diagram).
     """
     arm = scenario.arm_description
     period = scenario.uplink.period_s
@@ -164,37 +168,68 @@ def simulate_playback(diagram, robot: FlexibleJointArm, loggers: dict, duration_
                       ) -> tuple[object, dict]:
     """Runs a playback diagram to ``duration_s`` and takes the tracker's samples.
 
-    The integrator's dense output (cubic Hermite over each step, steps of at most 10 ms) is
-    evaluated at the tracker's instants (:func:`tracker_sample_times`) and the tracker samples
-    the plant's state there (:meth:`~telesmooth.systems.laser_tracker.LaserTracker.Record`).
+    Continuous plant (the default): the integrator's dense output (a cubic Hermite segment per
+    step, steps of at most 10 ms) is evaluated at the tracker's instants
+    (:func:`tracker_sample_times`) and the tracker samples the plant's state there
+    (:meth:`~telesmooth.systems.laser_tracker.LaserTracker.Record`). Drake refuses a dense
+    output with two step ends closer than 2.2e-16 s, which a step that ends one rounding error
+    before an event produces (e.g. with the interpolator polling every 10 ms); the playback is
+    then run again from the start, stopping the integrator at every sample instant instead:
+    the steps, and the record, of the tracker as a periodic event (measured on Defaults with
+    10 ms polls: the same values, 1.46 s for the whole playback against 1.50 s with the event).
+
     A discrete plant has no dense output: its tracker is a stage of the diagram
-    (:func:`AddPathPlayback` puts it there) and its logged samples are returned.
+    (:func:`AddPathPlayback` puts it there) and its logged samples are returned, with the
+    sample it holds at the end (taken at the last instant before the end, which no logger
+    shows when ``duration_s`` is not a multiple of the period).
 
     Args:
         diagram: A diagram built with :func:`AddPathPlayback`.
-        robot: Its robot (built with ``tracker_in_diagram=False``).
+        robot: Its robot.
         loggers: Its loggers (name → VectorLogSink).
         duration_s: Simulated time, s (> 0).
 
     Returns:
         (simulator, logs): the finished simulator, and ``logs`` as :func:`copy_logs` plus
-        "tracker", a :class:`~telesmooth.systems.laser_tracker.TrackerRecord`.
+        "tracker", a :class:`~telesmooth.systems.laser_tracker.TrackerRecord` (samples at
+        t_k = k·period < ``duration_s``).
+
+    Raises:
+        ValueError: If ``duration_s`` is not a finite time > 0.
     """
+    if isinstance(duration_s, bool) or not isinstance(duration_s, (int, float)) \
+            or not math.isfinite(duration_s) or duration_s <= 0.0:
+        raise ValueError(f"duration_s = {duration_s!r} must be a finite time > 0 (s)")
+    duration_s = float(duration_s)
     simulator = make_simulator(diagram, robot.config)
     simulator.Initialize()
     if robot.tracker_in_diagram:
         # A discrete plant (no dense output): the tracker's own event took the samples.
-        simulator.AdvanceTo(float(duration_s))
+        simulator.AdvanceTo(duration_s)
         context = simulator.get_context()
         logs = copy_logs({k: v for k, v in loggers.items() if k != _TRACKER_LOG}, context)
-        logs["tracker"] = tracker_record(loggers[_TRACKER_LOG].FindLog(context).data().T)
+        held = robot.GetOutputPort("tracker_measurement").Eval(
+            robot.GetMyContextFromRoot(context))
+        logs["tracker"] = tracker_record(np.vstack(
+            [loggers[_TRACKER_LOG].FindLog(context).data().T, held]))
         return simulator, logs
-    integrator = simulator.get_integrator()
-    integrator.StartDenseIntegration()
-    simulator.AdvanceTo(float(duration_s))
-    trajectory = integrator.StopDenseIntegration()
-    times = tracker_sample_times(robot.tracker.config.period_s, float(duration_s))
-    states = trajectory.vector_values(times).T[:, _plant_state_indices(diagram, robot)]
+    times = tracker_sample_times(robot.tracker.config.period_s, duration_s)
+    indices = _plant_state_indices(diagram, robot)
+    try:
+        integrator = simulator.get_integrator()
+        integrator.StartDenseIntegration()
+        simulator.AdvanceTo(duration_s)
+        states = integrator.StopDenseIntegration().vector_values(times).T[:, indices]
+    except RuntimeError:
+        # No dense output (see above): again from the start, stopping at every instant.
+        simulator = make_simulator(diagram, robot.config)
+        simulator.Initialize()
+        context = simulator.get_context()
+        states = np.empty((times.size, indices.size))
+        for row, time_s in zip(states, times):
+            simulator.AdvanceTo(float(time_s))
+            row[:] = context.get_continuous_state_vector().CopyToVector()[indices]
+        simulator.AdvanceTo(duration_s)
     logs = copy_logs(loggers, simulator.get_context())
     logs["tracker"] = robot.tracker.Record(times, states)
     return simulator, logs

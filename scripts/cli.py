@@ -564,8 +564,8 @@ def _add_experiment_parser(subparsers) -> None:
                    help="the KF form every claim uses; the other is reported beside it "
                         f"(default {defaults.kf_form}: the a-posteriori filter)")
     p.add_argument("--shard", default=None, metavar="K/N",
-                   help="run only every N-th task from the K-th (split a grid across runs or "
-                        "machines; --merge joins the folders)")
+                   help="run only every N-th demonstration's tasks from the K-th (split a "
+                        "grid across runs or machines; --merge joins the folders)")
     p.add_argument("--merge", default=None, metavar="DIR,DIR",
                    help="run nothing: join the records of these folders (the same grid, e.g. "
                         "its shards) into --out and write the report")

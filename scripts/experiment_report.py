@@ -40,7 +40,12 @@ from telesmooth.studies.claims import (
     summarize_cells,
 )
 from telesmooth.studies.comparison import LEAST_DEFORMATION
-from telesmooth.studies.experiment import ExperimentConfig, make_tasks, run_experiment
+from telesmooth.studies.experiment import (
+    ExperimentConfig,
+    make_tasks,
+    run_experiment,
+    task_groups,
+)
 from telesmooth.user_input import MAX_JSON_BYTES, read_file_bytes
 
 __all__ = ["code_fingerprint", "grid_fingerprint", "main_table_markdown",
@@ -491,7 +496,8 @@ class _RecordLog:
 
 
 def parse_shard(text: str | None) -> tuple[int, int] | None:
-    """``"K/N"`` → (K, N), 1 ≤ K ≤ N: this run does every N-th task from the K-th."""
+    """``"K/N"`` → (K, N), 1 ≤ K ≤ N: this run does every N-th demonstration's tasks from the
+    K-th."""
     if text is None:
         return None
     try:
@@ -535,7 +541,8 @@ def write_experiment_report(out_dir, base, config: ExperimentConfig, *, workers:
 
     Each finished task's record is appended to ``records.jsonl`` as it completes, so a rerun
     with the same folder (same grid; another grid is refused) continues where the last one
-    stopped. With ``shard = (K, N)`` only every N-th task from the K-th is run (the report
+    stopped. With ``shard = (K, N)`` only every N-th demonstration's tasks from the K-th
+    (:func:`~telesmooth.studies.experiment.task_groups`) are run (the report
     covers what the folder holds); :func:`merge_experiment_reports` joins the folders.
     """
     out = Path(out_dir)
@@ -549,7 +556,11 @@ def _run_and_report(out: Path, base, config: ExperimentConfig, workers: int, sch
     grid = grid_fingerprint(base, config)
     _check_grid(out, grid)
     tasks = make_tasks(config)
-    mine = tasks if shard is None else [t for t in tasks if t.index % shard[1] == shard[0] - 1]
+    # A shard takes whole demonstrations (every N-th group from the K-th), so that a
+    # demonstration's tasks still share one IK pass and their identical plant runs.
+    mine = tasks if shard is None else [
+        task for number, group in enumerate(task_groups(tasks))
+        if number % shard[1] == shard[0] - 1 for task in group]
     done = read_records(out)
     todo = [t for t in mine if t.key not in done]
     runs = sum(task.kind == "run" for task in tasks)

@@ -417,7 +417,8 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
         playbacks: A dict kept by the caller across the methods of one ``setup`` (start it
             empty): each plant run is stored in it under the exact packets played (their
             bytes, with the states sent beside them), and a method whose packets equal an
-            earlier one's to the bit reuses that run instead of simulating it again. The
+            earlier one's to the bit reuses that run instead of simulating it again (its
+            arrays are made read-only, the first run's too: they are shared). The
             playback is deterministic, so every figure is the same as a new run's (several
             methods often send the same packets: e.g. Offline-CKS and the Kalman smoother
             when no limit binds). None: every method is simulated.
@@ -534,9 +535,11 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
 
 
 def _playback_key(setup: ComparisonSetup, packet_states: np.ndarray) -> tuple:
-    """What a playback depends on besides the setup: the packets with their states, exactly."""
+    """What a playback depends on: the setup (its scenario, start pose and duration; the key
+    holds the object itself, so a dict shared across setups never mixes them) and the packets
+    with their states, exactly."""
     states = np.ascontiguousarray(packet_states, dtype=float)
-    return (states.shape, states.tobytes(), setup.q_start.tobytes(), setup.duration_s)
+    return (setup, states.shape, states.tobytes())
 
 
 def _read_only(logs: dict) -> dict:

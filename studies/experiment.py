@@ -346,7 +346,9 @@ def _c8_record(base: Scenario, config: ExperimentConfig, task: ExperimentTask) -
 
 
 def run_task(task: ExperimentTask, base: Scenario, config: ExperimentConfig) -> dict:
-    """Runs one cell; the record is JSON-ready and depends only on the task (not the worker)."""
+    """Runs one cell; the record is JSON-ready and its figures depend only on the task (not
+    the worker, nor the tasks run beside it); ``wall_s`` and ``playback_reused`` say how it
+    was computed."""
     return run_task_group([task], base, config)[0]
 
 
@@ -475,8 +477,11 @@ def run_experiment(base: Scenario, config: ExperimentConfig, *, workers: int = 2
             ``workers``.
         progress: Called with one line per finished task.
         tasks: A subset of :func:`make_tasks` (default all).
-        on_record: Called with each record as soon as its task finishes (in completion
-            order), e.g. to keep it on disk so that an interrupted run can resume.
+        on_record: Called with each record as soon as it reaches this process (in
+            completion order), e.g. to keep it on disk so that an interrupted run can
+            resume: in this process (``workers=0``) as each task finishes, on Dask as each
+            demonstration's group of tasks finishes (an interrupted run loses the groups in
+            progress).
     """
     tasks = list(make_tasks(config) if tasks is None else tasks)
     say = progress or (lambda line: None)

@@ -478,6 +478,9 @@ def test_shards_merge_into_the_report_of_the_whole_grid(base, tmp_path, monkeypa
                                 shard=(part, 2), **quiet)
     parts = [read_records(tmp_path / f"part{part}") for part in (1, 2)]
     assert parts[0] and parts[1] and not set(parts[0]) & set(parts[1])
+    # Each shard holds whole demonstrations (their tasks share the IK and the plant runs).
+    demos = [{(r["speed"], r["shape"], r["demo"]) for r in part.values()} for part in parts]
+    assert not demos[0] & demos[1]
     assert "Incomplete" in (tmp_path / "part1" / "report.md").read_text()
     merge_experiment_reports(tmp_path / "merged", [tmp_path / "part1", tmp_path / "part2"],
                              base, config, **quiet)
@@ -603,7 +606,9 @@ def test_a_group_gives_each_task_the_record_it_gets_alone_and_reuses_equal_packe
     assert not any(r["playback_reused"] for r in alone)
     reused = {r["label"] for r in grouped if r["playback_reused"]}
     # Offline-CKS is the Kalman smoother when no limit binds; BMFLS sends what one of the
-    # online smoothers sends. Their figures are those of their own simulations (above).
+    # online smoothers sends (bit for bit: the same arithmetic on the same samples, which this
+    # scenario's loose limits never alter). Their figures are those of their own simulations
+    # (above).
     assert reused == {"offline-cks", "bmfls"}
 
 

@@ -46,6 +46,13 @@ def test_the_sample_instants_are_those_of_the_periodic_event(period, duration, c
     assert times[-1] < duration
 
 
+def test_the_sample_instants_written_out():
+    np.testing.assert_allclose(tracker_sample_times(0.3, 1.0), [0.0, 0.3, 0.6, 0.9],
+                               rtol=0, atol=1e-15)
+    np.testing.assert_allclose(tracker_sample_times(0.01, 0.0501),
+                               [0.0, 0.01, 0.02, 0.03, 0.04, 0.05], rtol=0, atol=1e-15)
+
+
 def _event_record(scenario, packets, q_start, duration_s):
     """The same playback with the tracker as a stage of the diagram, sampling with its own
     periodic event (the oracle: no dense output involved)."""
@@ -170,12 +177,51 @@ def test_a_robot_without_its_tracker_has_no_tracker_ports():
     ).num_discrete_state_groups()
 
 
-def test_a_discrete_plant_keeps_its_tracker_in_the_playback(playback):
+@pytest.mark.parametrize("duration", [1.0, 1.0049, 0.0501])
+def test_a_discrete_plant_keeps_its_tracker_and_both_give_the_same_instants(playback,
+                                                                            duration):
+    """The sample taken at the last instant before the end is in both records, also when
+    no logger shows it (the end is not a multiple of the period)."""
     scenario, packets, q_start, _ = playback
     discrete = _with_onboard(scenario, time_step_s=0.001)
     builder = DiagramBuilder()
     _, _, robot, loggers = AddPathPlayback(builder, discrete, packets, q_start=q_start)
     assert robot.tracker_in_diagram
-    _, logs = simulate_playback(builder.Build(), robot, loggers, 1.0)
-    np.testing.assert_array_equal(logs["tracker"].t_s, tracker_sample_times(0.01, 1.0))
+    _, logs = simulate_playback(builder.Build(), robot, loggers, duration)
+    expected = tracker_sample_times(0.01, duration)
+    np.testing.assert_array_equal(logs["tracker"].t_s, expected)
     assert "tracker_measurement" not in logs
+    continuous = _dense_record(scenario, packets, q_start, duration)
+    np.testing.assert_array_equal(continuous.t_s, expected)
+
+
+def test_where_drake_refuses_a_dense_output_the_playback_stops_at_every_instant(playback):
+    """Interpolator polls every 10 ms: a 10 ms step from a poll ends one rounding error
+    before the next poll, and drake refuses the dense output (segments closer than
+    2.2e-16 s). The playback then runs again, stopping at each sample instant: the record is
+    the tracker event's within the integration error."""
+    scenario, packets, q_start, duration = playback
+    polling = dataclasses.replace(scenario, onboard=dataclasses.replace(
+        scenario.onboard, interpolator=dataclasses.replace(scenario.onboard.interpolator,
+                                                           poll_period_s=0.01)))
+    builder = DiagramBuilder()
+    _, _, robot, _ = AddPathPlayback(builder, polling, packets, q_start=q_start)
+    simulator = make_simulator(builder.Build(), robot.config)
+    simulator.Initialize()
+    simulator.get_integrator().StartDenseIntegration()
+    with pytest.raises(RuntimeError, match="apart"):
+        simulator.AdvanceTo(duration)
+    record = _dense_record(polling, packets, q_start, duration)
+    event = _event_record(polling, packets, q_start, duration)
+    np.testing.assert_array_equal(record.t_s, event.t_s)
+    assert np.abs(record.q_link - event.q_link).max() < 1e-5
+    assert np.ptp(event.q_link, axis=0).max() > 0.1
+
+
+@pytest.mark.parametrize("duration", [0.0, -1.0, float("nan"), float("inf"), True])
+def test_a_playback_needs_a_positive_duration(playback, duration):
+    scenario, packets, q_start, _ = playback
+    builder = DiagramBuilder()
+    _, _, robot, loggers = AddPathPlayback(builder, scenario, packets, q_start=q_start)
+    with pytest.raises(ValueError, match=r"duration_s = .* must be a finite time > 0"):
+        simulate_playback(builder.Build(), robot, loggers, duration)
