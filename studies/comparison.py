@@ -457,8 +457,8 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
     packets = packet_states[:, :, 0]
     smoothed = time.perf_counter()
 
-    key = _playback_key(setup, packet_states)
-    reused = playbacks is not None and key in playbacks
+    key = None if playbacks is None else _playback_key(setup, packet_states)
+    reused = key is not None and key in playbacks
     if reused:
         logs = playbacks[key]
     else:

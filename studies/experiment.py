@@ -390,8 +390,7 @@ def iter_task_group(tasks: Sequence[ExperimentTask], base: Scenario,
         ValueError: If the tasks are not of one demonstration.
     """
     tasks = list(tasks)
-    if len({_group_key(t) for t in tasks}) > 1 or (
-            len(tasks) > 1 and any(t.kind == "c8" for t in tasks)):
+    if len(task_groups(tasks)) > 1:
         raise ValueError("run_task_group: the tasks must be of one demonstration "
                          f"({sorted({t.key for t in tasks})[:3]} ...)")
     setup = None

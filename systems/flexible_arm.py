@@ -431,16 +431,17 @@ class FlexibleJointArm(Diagram):
             builder.AddSystem(tracker)
             builder.Connect(plant.get_state_output_port(),
                             tracker.get_plant_state_input_port())
+            for port, name in ((tracker.get_position_measured_output_port(),
+                                "position_measured"),
+                               (tracker.get_q_link_output_port(), "q_link"),
+                               (tracker.get_q_motor_output_port(), "q_motor"),
+                               (tracker.get_sample_time_output_port(), "tracker_sample_time"),
+                               (tracker.get_measurement_output_port(),
+                                "tracker_measurement")):
+                builder.ExportOutput(port, name)
 
         builder.ExportInput(interpolator.get_q_commanded_input_port(), "q_commanded")
         builder.ExportInput(interpolator.get_command_time_input_port(), "command_time")
-        if tracker_in_diagram:
-            builder.ExportOutput(tracker.get_position_measured_output_port(),
-                                 "position_measured")
-            builder.ExportOutput(tracker.get_q_link_output_port(), "q_link")
-            builder.ExportOutput(tracker.get_q_motor_output_port(), "q_motor")
-            builder.ExportOutput(tracker.get_sample_time_output_port(), "tracker_sample_time")
-            builder.ExportOutput(tracker.get_measurement_output_port(), "tracker_measurement")
         builder.ExportOutput(interpolator.get_command_rejected_output_port(),
                              "command_rejected")
         builder.ExportOutput(interpolator.get_state_desired_output_port(), "state_desired")
@@ -502,6 +503,7 @@ class FlexibleJointArm(Diagram):
 
     @property
     def tracker_in_diagram(self) -> bool:
+        """False if built without the tracker as a stage (no tracker ports, no 100 Hz event)."""
         return self._tracker_in_diagram
 
     def SetInitialPositions(self, root_context, q_rad) -> None:
