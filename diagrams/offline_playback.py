@@ -1,10 +1,12 @@
 """Playback of a joint path: 4 Hz source → the scenario's Uplink → the onboard robot, logged.
 
-:func:`AddPathPlayback` adds the stages for any 4 Hz path (the method comparison plays every
-method's packets through it); :func:`MakeOfflinePlaybackDiagram` builds it only for a valid
-offline plan (:mod:`~telesmooth.diagrams.offline_planning`), re-checked against the scene it is
-played in; :func:`run_offline` plans, and plays the plan if it is valid; :func:`copy_logs`
-copies the loggers' records out of a finished simulation.
+:func:`AddPathPlayback` adds the stages for any 4 Hz path; :func:`play_path` builds and runs
+one (the method comparison plays every method's packets with it), first without the plant's
+collision geometry and again with it unless the run is certified free of self-contact
+(:mod:`~telesmooth.arms.self_contact`); :func:`MakeOfflinePlaybackDiagram` builds it only
+for a valid offline plan (:mod:`~telesmooth.diagrams.offline_planning`), re-checked against the
+scene it is played in; :func:`run_offline` plans, and plays the plan if it is valid;
+:func:`copy_logs` copies the loggers' records out of a finished simulation.
 
 Playback timing. The source holds ``q_planned[k]`` on [t_k, t_{k+1}) and the last row afterwards;
 the uplink's tick at t_k samples it, so packet k carries ``q_planned[k]`` exactly (a logger at
@@ -38,6 +40,7 @@ import numpy as np
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 
+from telesmooth.arms.self_contact import SelfContactCheck, self_contact_certificate
 from telesmooth.diagrams.offline_planning import OfflinePlan, plan_offline
 from telesmooth.diagrams.offline_validation import (
     PERIOD_RTOL,
@@ -57,6 +60,7 @@ __all__ = [
     "OfflinePlaybackHandles",
     "SignalLog",
     "copy_logs",
+    "play_path",
     "run_offline",
     "simulate_playback",
     "tracker_sample_times",
@@ -102,7 +106,7 @@ class OfflinePlaybackHandles:
 
 
 def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q_start,
-                    states=None):
+                    states=None, contact_geometry: bool = True):
     """Adds a 4 Hz joint path → the scenario's Uplink → the onboard robot, with loggers.
 
     No check is made here: callers that command a real or a safety-relevant plant validate
@@ -115,6 +119,8 @@ def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q
         positions: The path, rad, (N, J).
         q_start: The robot's start pose, rad, (J,).
         states: Optional [q, q̇, q̈, q⃛] per row, (N, J, 4), sent with the packets.
+        contact_geometry: False: the robot's plant has no collision geometry (continuous
+            plant only; :func:`play_path` certifies such a run free of self-contact).
 
     Returns:
         (source, uplink, robot, logs): ``logs`` as :class:`OfflinePlaybackHandles`. Run the
@@ -137,7 +143,8 @@ def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q
     # output; a discrete plant has none, and its tracker stays a stage of the diagram.
     continuous = scenario.onboard.time_step_s == 0.0
     robot = AddOnboardRobot(builder, scenario, initial_position_rad=q_start,
-                            command_period_s=period, tracker_in_diagram=not continuous)
+                            command_period_s=period, tracker_in_diagram=not continuous,
+                            contact_geometry=contact_geometry)
     connect_uplink_to_robot(builder, uplink, robot)
     ports = {"sequence_number": uplink.get_sequence_number_output_port(),
              "send_time": uplink.get_send_time_output_port(),
@@ -192,7 +199,8 @@ def simulate_playback(diagram, robot: FlexibleJointArm, loggers: dict, duration_
     Returns:
         (simulator, logs): the finished simulator, and ``logs`` as :func:`copy_logs` plus
         "tracker", a :class:`~telesmooth.systems.laser_tracker.TrackerRecord` (samples at
-        t_k = k·period < ``duration_s``).
+        t_k = k·period < ``duration_s``), and with the continuous plant "plant_state", a
+        :class:`SignalLog` of the plant's [q; v] at the same instants.
 
     Raises:
         ValueError: If ``duration_s`` is not a finite time > 0.
@@ -232,7 +240,55 @@ def simulate_playback(diagram, robot: FlexibleJointArm, loggers: dict, duration_
         simulator.AdvanceTo(duration_s)
     logs = copy_logs(loggers, simulator.get_context())
     logs["tracker"] = robot.tracker.Record(times, states)
+    logs["plant_state"] = SignalLog(t_s=times, values=states)
     return simulator, logs
+
+
+def play_path(scenario: Scenario, positions, *, q_start, duration_s: float, states=None,
+              name: str = "playback") -> tuple[dict, SelfContactCheck | None]:
+    """Plays a 4 Hz joint path through the scenario's uplink and robot and returns the logs.
+
+    With the continuous plant, the run is made first without the plant's collision geometry
+    (Drake then asks for no contacts at each derivative evaluation: measured, a quarter of
+    the integration time on the air-bearing arm) and certified free of self-contact from its
+    recorded states (:class:`~telesmooth.arms.self_contact.SelfContactCertificate`): no pair
+    of links that could touch came within :data:`~telesmooth.arms.self_contact.CLEARANCE_M`.
+    The geometry's force is then zero throughout, and the run is the one the plant with
+    geometry makes. If the run cannot be certified it is made again with the geometry, and
+    that run is returned. A discrete plant always carries its geometry.
+
+    Args:
+        scenario, positions, q_start, states: As :func:`AddPathPlayback`.
+        duration_s: Simulated time, s (> 0).
+        name: The diagram's name.
+
+    Returns:
+        (logs, check): the logs of :func:`simulate_playback`, and the
+        :class:`~telesmooth.arms.self_contact.SelfContactCheck` of the run without geometry
+        (None when it was not made: a discrete plant, or an arm the certificate cannot
+        bound). The returned run had no geometry exactly when ``check.certified``.
+    """
+    check = None
+    if scenario.onboard.time_step_s == 0.0:
+        certificate = self_contact_certificate(scenario.arm_description)
+        if not certificate.reason:
+            logs = _play(scenario, positions, q_start, duration_s, states, name, False)
+            plant_state = logs["plant_state"].values
+            check = certificate.check(plant_state[:, :certificate.num_positions],
+                                      plant_state[:, certificate.num_positions:],
+                                      scenario.onboard.tracker.period_s)
+            if check.certified:
+                return logs, check
+    return _play(scenario, positions, q_start, duration_s, states, name, True), check
+
+
+def _play(scenario, positions, q_start, duration_s, states, name, contact_geometry) -> dict:
+    builder = DiagramBuilder()
+    _, _, robot, loggers = AddPathPlayback(builder, scenario, positions, states=states,
+                                           q_start=q_start, contact_geometry=contact_geometry)
+    diagram = builder.Build()
+    diagram.set_name(name)
+    return simulate_playback(diagram, robot, loggers, duration_s)[1]
 
 
 def _plant_state_indices(diagram, robot: FlexibleJointArm) -> np.ndarray:
@@ -299,7 +355,9 @@ def run_offline(scenario: Scenario, *, constraint: str = "trajectory", max_veloc
 
     Returns:
         (plan, logs): ``logs`` maps each logger name of :class:`OfflinePlaybackHandles` to a
-        :class:`SignalLog` copy; it is None when the plan is not valid (nothing is played).
+        :class:`SignalLog` copy, with "tracker" and "plant_state" as
+        :func:`simulate_playback` returns them; it is None when the plan is not valid
+        (nothing is played).
 
     Raises:
         ValueError: As :func:`plan_offline` for invalid input.

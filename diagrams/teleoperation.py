@@ -255,19 +255,24 @@ def AddGroundStation(builder: DiagramBuilder, scenario: Scenario, *,
 
 def AddOnboardRobot(builder: DiagramBuilder, scenario: Scenario, *,
                     initial_position_rad, command_period_s: float | None = None,
-                    tracker_in_diagram: bool = True) -> FlexibleJointArm:
+                    tracker_in_diagram: bool = True,
+                    contact_geometry: bool = True) -> FlexibleJointArm:
     """Adds the flexible-joint arm (interpolator + plant + tracker), starting at rest.
 
     ``command_period_s``: the period at which its command can change, when the caller knows
     it (the uplink's, driving the robot directly): its interpolator polls only then (see
     :class:`~telesmooth.systems.flexible_arm.FlexibleJointArm`); None: every 10 ms.
     ``tracker_in_diagram``: False leaves the tracker out of the diagram (a playback samples
-    it afterwards, see :class:`~telesmooth.systems.flexible_arm.FlexibleJointArm`)."""
+    it afterwards, see :class:`~telesmooth.systems.flexible_arm.FlexibleJointArm`).
+    ``contact_geometry``: False builds the plant without collision geometry (a playback
+    certified free of self-contact afterwards,
+    :func:`~telesmooth.diagrams.offline_playback.play_path`)."""
     config = dataclasses.replace(
         scenario.onboard, arm=scenario.arm,
         initial_position_rad=tuple(float(v) for v in initial_position_rad))
     return builder.AddNamedSystem("robot", FlexibleJointArm(
-        config, command_period_s=command_period_s, tracker_in_diagram=tracker_in_diagram))
+        config, command_period_s=command_period_s, tracker_in_diagram=tracker_in_diagram,
+        contact_geometry=contact_geometry))
 
 
 def AddJointCommandSender(builder: DiagramBuilder, ground: GroundHandles, scenario: Scenario,

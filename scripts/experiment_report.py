@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from telesmooth.arms.self_contact import CLEARANCE_M
 from telesmooth.atomic_files import write_text
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.scripts.formatting import limit_ratio
@@ -326,6 +327,10 @@ def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figure
         f"{meta['num_tasks']} tasks ({meta['num_runs']} simulations of the chain"
         + (f"; {meta['reused']} of them sent the same packets as another method of their "
            "demonstration and reuse its plant run" if meta.get("reused") else "")
+        + (f"; of the plant runs, {meta['certified']} were certified free of self-contact "
+           f"(no two links that could touch came within {CLEARANCE_M * 1e3:g} mm) and ran "
+           f"without the arm's collision geometry, {meta['with_geometry']} ran with it"
+           if meta.get("certified") or meta.get("with_geometry") else "")
         + f"); this run computed {meta['computed']} of them on {meta['workers']} in "
         f"{meta['wall_s']:.0f} s"
         + (f", the others were kept from earlier runs ({meta['kept']})" if meta['kept'] else "")
@@ -621,6 +626,10 @@ def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, 
     mapping = base.haptic.lasa_mapping
     meta = {**meta, "num_tasks": len(tasks), "num_runs": sum(t.kind == "run" for t in tasks),
             "reused": sum(bool(r.get("playback_reused")) for r in records),
+            "certified": sum(r.get("contact_geometry") is False
+                             and not r.get("playback_reused") for r in records),
+            "with_geometry": sum(r.get("contact_geometry") is True
+                                 and not r.get("playback_reused") for r in records),
             "missing": missing,
             "mapping": ", ".join(f"{f.name} = {getattr(mapping, f.name)}"
                                  for f in dataclasses.fields(mapping)),

@@ -55,11 +55,11 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-from pydrake.systems.framework import DiagramBuilder
 
 from telesmooth.arms.collision import ArmCollisionModel
 from telesmooth.arms.joint_vectors import as_per_joint
-from telesmooth.diagrams.offline_playback import AddPathPlayback, simulate_playback
+from telesmooth.arms.self_contact import SelfContactCheck
+from telesmooth.diagrams.offline_playback import play_path
 from telesmooth.diagrams.offline_validation import validate_joint_path
 from telesmooth.diagrams.scenario import Scenario, make_haptic_recording
 from telesmooth.diagrams.session_sampling import joint_targets_at_uplink_rate, recording_ticks
@@ -138,6 +138,10 @@ class MethodRun:
         timings_s: "smooth" and "simulate" wall-clock times, s.
         playback_reused: True when the plant run is an earlier method's, whose packets
             were the same to the bit (see ``playbacks`` of :func:`run_method`).
+        self_contact: The check of its plant run without collision geometry
+            (:func:`~telesmooth.diagrams.offline_playback.play_path`): when it is certified
+            the figures come from that run, otherwise (or when it is None) from a run of the
+            plant with its geometry.
     """
 
     method: str
@@ -154,6 +158,7 @@ class MethodRun:
     metrics: dict
     timings_s: dict
     playback_reused: bool = False
+    self_contact: SelfContactCheck | None = None
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -460,16 +465,13 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
     key = None if playbacks is None else _playback_key(setup, packet_states)
     reused = key is not None and key in playbacks
     if reused:
-        logs = playbacks[key]
+        logs, self_contact = playbacks[key]
     else:
-        builder = DiagramBuilder()
-        _, _, robot, loggers = AddPathPlayback(builder, scenario, packets, states=packet_states,
-                                               q_start=q_start)
-        diagram = builder.Build()
-        diagram.set_name(f"compare_{label}")
-        _, logs = simulate_playback(diagram, robot, loggers, setup.duration_s)
+        logs, self_contact = play_path(scenario, packets, states=packet_states,
+                                       q_start=q_start, duration_s=setup.duration_s,
+                                       name=f"compare_{label}")
         if playbacks is not None:
-            playbacks[key] = _read_only(logs)
+            playbacks[key] = (_read_only(logs), self_contact)
     simulated = time.perf_counter()
 
     fk = setup.fk
@@ -531,7 +533,7 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
         t_s=period * np.arange(len(packets)), tracker_t_s=tracker_t, tool_position_m=tool,
         q_link=tracker.q_link, q_motor=tracker.q_motor, response_error_m=e,
         operator_error_m=e_operator, metrics=metrics, timings_s=timings,
-        playback_reused=reused)
+        playback_reused=reused, self_contact=self_contact)
 
 
 def _playback_key(setup: ComparisonSetup, packet_states: np.ndarray) -> tuple:
@@ -601,9 +603,12 @@ def compare_methods(scenario: Scenario, methods=METHODS, *,
         run = run_method(setup, method, offline_solver=offline_solver, playbacks=playbacks)
         runs[method] = run
         set_improvement_ratios({_REFERENCE: runs[_REFERENCE], method: run})
+        check = run.self_contact
         played = ("the same packets as an earlier method: its plant run reused"
                   if run.playback_reused else
-                  f"{setup.duration_s:.1f} s simulated in {run.timings_s['simulate']:.1f} s")
+                  f"{setup.duration_s:.1f} s simulated in {run.timings_s['simulate']:.1f} s"
+                  + ("" if check is not None and check.certified else
+                     " with the arm's collision geometry (self-contact not excluded)"))
         say(f"[{number}/{len(methods)}] {method}: smoothed in {run.timings_s['smooth']:.2f} s, "
             f"{played}; P = {run.metrics['improvement_ratio_percent']:.1f} %")
     return Comparison(setup=setup, runs=runs)

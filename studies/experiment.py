@@ -432,6 +432,10 @@ def _task_record(task: ExperimentTask, base: Scenario, config: ExperimentConfig,
                                                 setup.q_start).as_dict(3)
         record["simulated_s"] = setup.duration_s
         record["playback_reused"] = run.playback_reused
+        check = run.self_contact
+        record["contact_geometry"] = not (check is not None and check.certified)
+        record["self_clearance_m"] = (check.min_clearance_m if check is not None
+                                      and math.isfinite(check.min_clearance_m) else None)
         if task.method == "online-cks":
             # Where this run sits on each axis of the sensitivity study.
             sigma0 = np.asarray(settings.sigma, dtype=float)

@@ -25,7 +25,7 @@ import dataclasses
 import math
 
 import numpy as np
-from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import MatrixGain
@@ -354,7 +354,8 @@ class FlexibleJointArm(Diagram):
     """
 
     def __init__(self, config: FlexibleArmConfig = FlexibleArmConfig(), *,
-                 command_period_s: float | None = None, tracker_in_diagram: bool = True):
+                 command_period_s: float | None = None, tracker_in_diagram: bool = True,
+                 contact_geometry: bool = True):
         """Builds the diagram.
 
         Args:
@@ -373,6 +374,12 @@ class FlexibleJointArm(Diagram):
                 :meth:`LaserTracker.Record` takes the samples afterwards from the plant's
                 states at the sample instants
                 (:func:`~telesmooth.diagrams.offline_playback.simulate_playback`).
+            contact_geometry: True (default): the plant carries the arm's collision geometry
+                (links that meet push each other apart) in a SceneGraph. False (a playback
+                whose run is then certified free of self-contact,
+                :mod:`telesmooth.arms.self_contact`): the plant has no geometry and no
+                SceneGraph, and the diagram has no ``query_object`` port; continuous plant
+                only.
 
         Raises:
             ValueError: if ``config`` is not a FlexibleArmConfig. Invalid field values are
@@ -381,6 +388,9 @@ class FlexibleJointArm(Diagram):
         super().__init__()
         if not isinstance(config, FlexibleArmConfig):
             raise ValueError(f"config = {config!r} must be a FlexibleArmConfig")
+        if not contact_geometry and config.time_step_s != 0.0:
+            raise ValueError("contact_geometry=False needs the continuous plant "
+                             f"(time_step_s = 0); got time_step_s = {config.time_step_s!r}")
         arm = config.arm_description
         n = arm.num_joints
         q0 = (np.zeros(n) if config.initial_position_rad is None
@@ -395,12 +405,16 @@ class FlexibleJointArm(Diagram):
         # discrete update at t_n (the tracker's sample) reads the plant's state after its
         # step at t_n, i.e. the state of t_n + h, while loggers and the state itself are of
         # t_n. Unsampled, every reader at t sees the state of t.
-        plant, scene_graph = AddMultibodyPlant(
-            MultibodyPlantConfig(
-                time_step=config.time_step_s,
-                discrete_contact_approximation=config.discrete_contact_approximation,
-                use_sampled_output_ports=False),
-            builder)
+        plant_config = MultibodyPlantConfig(
+            time_step=config.time_step_s,
+            discrete_contact_approximation=config.discrete_contact_approximation,
+            use_sampled_output_ports=False)
+        if contact_geometry:
+            plant, scene_graph = AddMultibodyPlant(plant_config, builder)
+        else:
+            # No SceneGraph: the parser registers no geometry, and the plant asks for none.
+            plant, scene_graph = builder.AddNamedSystem(
+                "plant", MultibodyPlant(config.time_step_s)), None
         instance = add_arm(plant, arm, flexible=True)
         plant.mutable_gravity_field().set_gravity_vector(np.array(config.gravity_m_per_s2))
         for name, angle in zip(arm.joint_names, q0):
@@ -447,7 +461,8 @@ class FlexibleJointArm(Diagram):
         builder.ExportOutput(interpolator.get_state_desired_output_port(), "state_desired")
         builder.ExportOutput(interpolator.get_ramp_output_port(), "command_ramp")
         builder.ExportOutput(plant.get_state_output_port(), "plant_state")
-        builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
+        if scene_graph is not None:
+            builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
         builder.BuildInto(self)
         self.set_name(f"flexible_{arm.name}")
 

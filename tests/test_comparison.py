@@ -236,3 +236,24 @@ def test_a_method_whose_packets_were_played_already_reuses_that_plant_run(scenar
     # The shared record cannot be changed through one of the runs that hold it.
     with pytest.raises(ValueError, match="read-only"):
         again.tool_position_m[0, 0] = 1.0
+
+
+def test_a_run_that_keeps_its_collision_geometry_is_said_so_and_gives_the_same_figures(
+        monkeypatch):
+    import telesmooth.arms.self_contact as self_contact
+
+    defaults = load_scenario(scenario_text="{}")
+    said = []
+    certified = compare_methods(defaults, ("original",), progress=said.append)
+    run = certified.runs["original"]
+    assert run.self_contact.certified and "collision geometry" not in said[0]
+    # A clearance no run can show: the run is refused and made again with the geometry.
+    monkeypatch.setattr(self_contact, "CLEARANCE_M", 1e3)
+    said.clear()
+    kept = compare_methods(defaults, ("original",), progress=said.append).runs["original"]
+    assert not kept.self_contact.certified
+    assert "with the arm's collision geometry (self-contact not excluded)" in said[0]
+    # No link touched another: the geometry's run is the same run.
+    np.testing.assert_array_equal(kept.tool_position_m, run.tool_position_m)
+    assert {k: v for k, v in kept.metrics.items() if k != "timings_s"} == {
+        k: v for k, v in run.metrics.items() if k != "timings_s"}

@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 
+from telesmooth.arms.self_contact import CLEARANCE_M
 from telesmooth.diagrams.scenario import load_scenario
 from telesmooth.scripts.cli import main
 from telesmooth.studies.claims import check_claims, summarize, summarize_cells
@@ -610,6 +611,12 @@ def test_a_group_gives_each_task_the_record_it_gets_alone_and_reuses_equal_packe
     # scenario's loose limits never alter). Their figures are those of their own simulations
     # (above).
     assert reused == {"offline-cks", "bmfls"}
+    # These demonstrations stay far from self-contact: every plant run was certified so and
+    # ran without collision geometry (the figures above are the same as alone, where it did
+    # too; tests/test_self_contact.py compares such a run with the run with geometry).
+    runs = [r for r in grouped if "metrics" in r]
+    assert runs and all(r["contact_geometry"] is False
+                        and r["self_clearance_m"] > CLEARANCE_M for r in runs)
 
 
 def test_a_group_is_one_demonstration():
@@ -639,3 +646,27 @@ def test_the_report_says_how_many_plant_runs_were_reused(base, tmp_path, monkeyp
     assert f"; {bmfls} of them sent the same packets as another method" in report.read_text()
     data = json.loads((tmp_path / "exp" / "experiment.json").read_text())
     assert data["meta"]["reused"] == bmfls
+
+
+def test_the_report_says_how_many_plant_runs_kept_their_collision_geometry(base, tmp_path,
+                                                                          monkeypatch):
+    from telesmooth.scripts.experiment_report import write_experiment_report
+
+    calls = []
+    module, fake_group = _fake_run_task(calls)
+
+    def checked(tasks, base, config):
+        for record in fake_group(tasks, base, config):
+            yield {**record, "playback_reused": record["method"] == "bmfls",
+                   "contact_geometry": record["method"] == "kf"}
+
+    monkeypatch.setattr(module, "iter_task_group", checked)
+    config = _grid()
+    report = write_experiment_report(tmp_path / "exp", base, config, workers=0,
+                                     progress=lambda line: None)
+    count = {m: sum(t.method == m for t in make_tasks(config)) for m in ("original", "kf")}
+    assert (f"of the plant runs, {count['original']} were certified free of self-contact "
+            "(no two links that could touch came within 1 mm) and ran without the arm's "
+            f"collision geometry, {count['kf']} ran with it") in report.read_text()
+    meta = json.loads((tmp_path / "exp" / "experiment.json").read_text())["meta"]
+    assert (meta["certified"], meta["with_geometry"]) == (count["original"], count["kf"])

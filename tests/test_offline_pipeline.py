@@ -258,7 +258,13 @@ def test_run_offline_returns_the_plan_and_copied_logs(scenario, plan):
     dut, logs = run_offline(scenario)
     np.testing.assert_array_equal(dut.q_planned, plan.q_planned)
     assert set(logs) == {"sequence_number", "send_time", "q_sent", "state_sent", "tracker",
-                         "command_rejected", "command_ramp"}
+                         "command_rejected", "command_ramp", "plant_state"}
+    # The plant's [q; v] at the tracker's instants: its link angles are the tracker's.
+    state = logs["plant_state"]
+    np.testing.assert_array_equal(state.t_s, logs["tracker"].t_s)
+    assert state.values.shape == (state.t_s.size, 12)
+    np.testing.assert_allclose(state.values[:, 0:6:2] + state.values[:, 1:6:2],
+                               logs["tracker"].q_link, rtol=0, atol=1e-15)
     assert logs["q_sent"].values.shape[1] == 3
     np.testing.assert_array_equal(logs["q_sent"].values[-1], plan.q_planned[-1])
     assert np.abs(logs["tracker"].q_link[-1] - plan.q_planned[-1]).max() < 0.01
