@@ -7,8 +7,11 @@ any pair is near: a quarter of a playback's integration time on the air-bearing 
 playback (``compare``, ``experiment``) therefore runs the plant without geometry and then
 checks, from the states it recorded, that no pair of links that could touch came near each
 other; when the check fails the run is discarded and simulated again with the geometry
-(:func:`~telesmooth.diagrams.offline_playback.play_path`). When the geometry is never in
-contact its force is exactly zero, so a certified run without it is the same run.
+(:func:`~telesmooth.diagrams.offline_playback.play_path`). When the geometry is in contact at
+no state the integrator evaluates, its force is exactly zero and a run without it is the same
+run. Those states are the recorded samples and the integrator's stages and trial steps, all
+within one step (at most 10 ms) of a sample: the margin below covers them as it covers the
+motion between samples.
 
 The check. For each pair (A, B) of collision geometries the plant does not filter, the signed
 distance d(q) depends on the joints between the two bodies only, and moving joint J by δ moves
@@ -34,6 +37,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import threading
 
 import numpy as np
 from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
@@ -104,6 +108,8 @@ class SelfContactCertificate:
         self._plant_context = plant.GetMyMutableContextFromRoot(self._context)
         self._scene_graph = scene_graph
         self._sg_context = scene_graph.GetMyContextFromRoot(self._context)
+        # One context, shared by the threads of a process (e.g. a Dask worker's).
+        self._lock = threading.Lock()
         self.num_positions = plant.num_positions()
         self.num_velocities = plant.num_velocities()
         joints = [plant.get_joint(index) for index in plant.GetJointIndices()]
@@ -135,10 +141,11 @@ class SelfContactCertificate:
 
     def distances(self, positions) -> np.ndarray:
         """Exact signed distance of every candidate pair at the plant positions, m, (pairs,)."""
-        self._plant.SetPositions(self._plant_context, np.asarray(positions, dtype=float))
-        query = self._scene_graph.get_query_output_port().Eval(self._sg_context)
-        return np.array([query.ComputeSignedDistancePairClosestPoints(
-            pair.geometry_a, pair.geometry_b).distance for pair in self._pairs])
+        with self._lock:
+            self._plant.SetPositions(self._plant_context, np.asarray(positions, dtype=float))
+            query = self._scene_graph.get_query_output_port().Eval(self._sg_context)
+            return np.array([query.ComputeSignedDistancePairClosestPoints(
+                pair.geometry_a, pair.geometry_b).distance for pair in self._pairs])
 
     def check(self, positions, velocities, period_s: float) -> SelfContactCheck:
         """Certifies a run from its plant states sampled every ``period_s`` (see the module).
@@ -159,6 +166,8 @@ class SelfContactCertificate:
                 or v.shape != (q.shape[0], self.num_velocities):
             raise ValueError(f"positions {q.shape} and velocities {v.shape} must be "
                              f"(T, {self.num_positions}) and (T, {self.num_velocities})")
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+            raise ValueError("positions and velocities must be finite")
         angles = q[:, self._position_index]
         speed = np.abs(v[:, self._velocity_index])
         # Movement from each sample to anywhere before the next one (or the run's end).

@@ -253,9 +253,10 @@ def play_path(scenario: Scenario, positions, *, q_start, duration_s: float, stat
     the integration time on the air-bearing arm) and certified free of self-contact from its
     recorded states (:class:`~telesmooth.arms.self_contact.SelfContactCertificate`): no pair
     of links that could touch came within :data:`~telesmooth.arms.self_contact.CLEARANCE_M`.
-    The geometry's force is then zero throughout, and the run is the one the plant with
-    geometry makes. If the run cannot be certified it is made again with the geometry, and
-    that run is returned. A discrete plant always carries its geometry.
+    The geometry's force is then zero at every state the integrator evaluated (those lie within
+    a step, at most 10 ms, of the recorded samples, and so within the same margin), and the run
+    is the one the plant with geometry makes. If the run cannot be certified it is made again
+    with the geometry, and that run is returned. A discrete plant always carries its geometry.
 
     Args:
         scenario, positions, q_start, states: As :func:`AddPathPlayback`.
@@ -265,15 +266,24 @@ def play_path(scenario: Scenario, positions, *, q_start, duration_s: float, stat
     Returns:
         (logs, check): the logs of :func:`simulate_playback`, and the
         :class:`~telesmooth.arms.self_contact.SelfContactCheck` of the run without geometry
-        (None when it was not made: a discrete plant, or an arm the certificate cannot
-        bound). The returned run had no geometry exactly when ``check.certified``.
+        (for an arm the certificate cannot bound, not made: ``check.reason`` says why; None
+        for a discrete plant). The returned run had no geometry exactly when
+        ``check.certified``.
     """
     check = None
     if scenario.onboard.time_step_s == 0.0:
-        certificate = self_contact_certificate(scenario.arm_description)
-        if not certificate.reason:
+        # The robot's own model (AddOnboardRobot builds it from these settings).
+        arm = dataclasses.replace(scenario.onboard, arm=scenario.arm).arm_description
+        certificate = self_contact_certificate(arm)
+        if certificate.reason:
+            check = SelfContactCheck(False, -math.inf, ("", ""), 0, certificate.reason)
+        else:
             logs = _play(scenario, positions, q_start, duration_s, states, name, False)
             plant_state = logs["plant_state"].values
+            width = certificate.num_positions + certificate.num_velocities
+            if plant_state.shape[1] != width:
+                raise RuntimeError(f"the playback's plant has {plant_state.shape[1]} states; "
+                                   f"the certificate's model of {arm.name!r} has {width}")
             check = certificate.check(plant_state[:, :certificate.num_positions],
                                       plant_state[:, certificate.num_positions:],
                                       scenario.onboard.tracker.period_s)

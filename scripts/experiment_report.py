@@ -328,8 +328,11 @@ def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figure
         + (f"; {meta['reused']} of them sent the same packets as another method of their "
            "demonstration and reuse its plant run" if meta.get("reused") else "")
         + (f"; of the plant runs, {meta['certified']} were certified free of self-contact "
-           f"(no two links that could touch came within {CLEARANCE_M * 1e3:g} mm) and ran "
-           f"without the arm's collision geometry, {meta['with_geometry']} ran with it"
+           f"(no two links that could touch came within {CLEARANCE_M * 1e3:g} mm, with a "
+           "margin for the motion between the 10 ms samples) and ran without the arm's "
+           f"collision geometry, {meta['with_geometry']} ran with it"
+           + (f", {meta['geometry_unknown']} kept from earlier runs do not say"
+              if meta.get("geometry_unknown") else "")
            if meta.get("certified") or meta.get("with_geometry") else "")
         + f"); this run computed {meta['computed']} of them on {meta['workers']} in "
         f"{meta['wall_s']:.0f} s"
@@ -630,6 +633,8 @@ def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, 
                              and not r.get("playback_reused") for r in records),
             "with_geometry": sum(r.get("contact_geometry") is True
                                  and not r.get("playback_reused") for r in records),
+            "geometry_unknown": sum("metrics" in r and "contact_geometry" not in r
+                                    and not r.get("playback_reused") for r in records),
             "missing": missing,
             "mapping": ", ".join(f"{f.name} = {getattr(mapping, f.name)}"
                                  for f in dataclasses.fields(mapping)),

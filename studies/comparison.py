@@ -607,8 +607,9 @@ def compare_methods(scenario: Scenario, methods=METHODS, *,
         played = ("the same packets as an earlier method: its plant run reused"
                   if run.playback_reused else
                   f"{setup.duration_s:.1f} s simulated in {run.timings_s['simulate']:.1f} s"
-                  + ("" if check is not None and check.certified else
-                     " with the arm's collision geometry (self-contact not excluded)"))
+                  + ("" if check is None or check.certified else
+                     " with the arm's collision geometry (self-contact not excluded"
+                     + (f": {check.reason})" if check.reason else ")")))
         say(f"[{number}/{len(methods)}] {method}: smoothed in {run.timings_s['smooth']:.2f} s, "
             f"{played}; P = {run.metrics['improvement_ratio_percent']:.1f} %")
     return Comparison(setup=setup, runs=runs)

@@ -434,7 +434,8 @@ def _task_record(task: ExperimentTask, base: Scenario, config: ExperimentConfig,
         record["playback_reused"] = run.playback_reused
         check = run.self_contact
         record["contact_geometry"] = not (check is not None and check.certified)
-        record["self_clearance_m"] = (check.min_clearance_m if check is not None
+        # The certified clearance, m; None when the run kept its geometry (or no pair can touch).
+        record["self_clearance_m"] = (check.min_clearance_m if not record["contact_geometry"]
                                       and math.isfinite(check.min_clearance_m) else None)
         if task.method == "online-cks":
             # Where this run sits on each axis of the sensitivity study.

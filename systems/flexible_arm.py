@@ -322,7 +322,8 @@ class FlexibleJointArm(Diagram):
       the end, so the motors track the ramp itself, not the ramp one step late.
     - ``plant_state``: the full plant state [q; v], (4n,): per joint (motor, deflection)
       positions in the plant's order, then velocities (see ``plant.GetStateNames()``).
-    - ``query_object``: SceneGraph's query output, for visualizers.
+    - ``query_object``: SceneGraph's query output, for visualizers (absent when built with
+      ``contact_geometry=False``).
 
     Motor servo (the plant's PD, per motor joint i, clamped to the motor's effort limit):
 
