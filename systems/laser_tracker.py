@@ -16,6 +16,7 @@ import math
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
+from telesmooth.arms.chain_kinematics import ChainPoint
 from telesmooth.systems.timing import check_period
 
 __all__ = ["LaserTracker", "LaserTrackerConfig", "TrackerRecord", "tracker_record"]
@@ -193,6 +194,10 @@ class LaserTracker(LeafSystem):
         self._world_frame = plant.world_frame()
         self._tool_origin = np.zeros((3, 1))
         self._plant_context = plant.CreateDefaultContext()
+        try:   # Record's forward kinematics, all samples at once (None: Drake's, one by one)
+            self._tool_chain = ChainPoint(plant, self._tool_frame)
+        except ValueError:
+            self._tool_chain = None
 
         self._plant_state_input = self.DeclareVectorInputPort(
             "plant_state", plant.num_multibody_states())
@@ -255,7 +260,11 @@ class LaserTracker(LeafSystem):
         The same computation as the periodic event (forward kinematics of the positions,
         link and motor angles, sample k's noise from ``(seed, k)``), for states obtained
         otherwise, e.g. a playback's integrator's dense output evaluated at t_k = k·period
-        (:func:`~telesmooth.diagrams.offline_playback.simulate_playback`).
+        (:func:`~telesmooth.diagrams.offline_playback.simulate_playback`). The forward
+        kinematics runs over all samples at once (``ChainPoint`` of
+        :mod:`telesmooth.arms.chain_kinematics`, the plant's chain of fixed poses and joint
+        rotations; about 1.6 µs a sample against 7 µs through Drake's bindings): it equals
+        the event's, Drake's, to rounding (about 2e-16 m), not to the bit.
 
         Args:
             times_s: The sample instants t_k, s, (T,), strictly increasing.
@@ -274,7 +283,10 @@ class LaserTracker(LeafSystem):
             raise ValueError("times_s must be strictly increasing")
         positions = states[:, : self._num_positions]
         q_motor = positions[:, self._motor_index]
-        tool = np.array([self._tool_position(row) for row in positions]).reshape(-1, 3)
+        if self._tool_chain is not None:
+            tool = self._tool_chain.positions(positions)
+        else:
+            tool = np.array([self._tool_position(row) for row in positions]).reshape(-1, 3)
         if self._config.noise_m > 0.0:
             tool += np.array([self._noise(float(t)) for t in times]).reshape(-1, 3)
         return TrackerRecord(t_s=times.copy(), tool_position_m=tool,
