@@ -18,7 +18,7 @@ import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.tree import RevoluteJoint, WeldJoint
 
-__all__ = ["ChainPoint"]
+__all__ = ["ChainPoint", "joint_path"]
 
 
 class ChainPoint:
@@ -35,27 +35,17 @@ class ChainPoint:
     """
 
     def __init__(self, plant, frame, point=(0.0, 0.0, 0.0)):
-        by_child = {}
-        for index in plant.GetJointIndices():
-            joint = plant.get_joint(index)
-            by_child[joint.child_body().index()] = joint
-        body = frame.body()
-        chain = []
-        while body.index() != plant.world_body().index():
-            joint = by_child.get(body.index())
-            if joint is None:
-                raise ValueError(f"body {body.name()!r} has no joint to the world")
+        chain = joint_path(plant, frame.body())
+        for joint in chain:
             if not isinstance(joint, (RevoluteJoint, WeldJoint)):
                 raise ValueError(f"joint {joint.name()!r} is a {type(joint).__name__}: only "
                                  "revolute joints and welds are supported")
-            chain.append(joint)
-            body = joint.parent_body()
         # X_WT = C_0 · Rz(q_1) · C_1 · Rz(q_2) ··· Rz(q_m) · C_m · p_T: each revolute joint
         # turned about z of a frame A whose z is its axis (X_FM(θ) = A·Rz(θ)·Aᵀ), and every
         # fixed pose between two revolute joints folded into one constant C_i.
         constant = RigidTransform()
         self._joints, self._constants = [], []
-        for joint in reversed(chain):
+        for joint in chain:
             constant = constant.multiply(joint.frame_on_parent().GetFixedPoseInBodyFrame())
             if isinstance(joint, WeldJoint):
                 constant = constant.multiply(joint.X_FM())
@@ -84,6 +74,26 @@ class ChainPoint:
             x, y = rotation[:, :, 0], rotation[:, :, 1]
             rotation = np.stack([c * x + s * y, c * y - s * x, rotation[:, :, 2]], axis=-1)
         return translation + rotation @ self._last
+
+
+def joint_path(plant, body) -> list:
+    """The joints from the world down to ``body`` of a finalized plant, the world's first.
+
+    Raises:
+        ValueError: If the path does not reach the world (naming the body where it stops).
+    """
+    by_child = {}
+    for index in plant.GetJointIndices():
+        joint = plant.get_joint(index)
+        by_child[joint.child_body().index()] = joint
+    path = []
+    while body.index() != plant.world_body().index():
+        joint = by_child.get(body.index())
+        if joint is None:
+            raise ValueError(f"body {body.name()!r} has no joint to the world")
+        path.append(joint)
+        body = joint.parent_body()
+    return path[::-1]
 
 
 def _frame_with_z(axis) -> RotationMatrix:

@@ -45,6 +45,7 @@ from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.multibody.tree import RevoluteJoint
 from pydrake.systems.framework import DiagramBuilder
 
+from telesmooth.arms.chain_kinematics import joint_path
 from telesmooth.arms.description import ArmDescription
 from telesmooth.arms.drake_models import add_arm
 
@@ -112,8 +113,8 @@ class SelfContactCertificate:
         self._lock = threading.Lock()
         self.num_positions = plant.num_positions()
         self.num_velocities = plant.num_velocities()
-        joints = [plant.get_joint(index) for index in plant.GetJointIndices()]
-        self._revolute = [j for j in joints if isinstance(j, RevoluteJoint)]
+        self._revolute = [joint for joint in map(plant.get_joint, plant.GetJointIndices())
+                          if isinstance(joint, RevoluteJoint)]
         self._revolute_slot = {j.index(): slot for slot, j in enumerate(self._revolute)}
         self._position_index = np.array([j.position_start() for j in self._revolute], int)
         self._velocity_index = np.array([j.velocity_start() for j in self._revolute], int)
@@ -123,15 +124,19 @@ class SelfContactCertificate:
         pairs = []
         for geometry_a, geometry_b in inspector.GetCollisionCandidates():
             try:
-                pairs.append(self._pair(inspector, geometry_a, geometry_b, joints))
+                pairs.append(self._pair(inspector, geometry_a, geometry_b))
             except ValueError as error:
                 self.reason = str(error)
                 break
         self._pairs = tuple(pairs) if not self.reason else ()
 
     @property
-    def pair_names(self) -> tuple[tuple[str, str], ...]:
-        return tuple(pair.names for pair in self._pairs)
+    def refusal(self) -> SelfContactCheck | None:
+        """The check of every run of an arm the certificate cannot bound (never certified,
+        ``reason`` says why); None when it can bound it."""
+        if not self.reason:
+            return None
+        return SelfContactCheck(False, -math.inf, ("", ""), 0, self.reason)
 
     def radii(self) -> dict:
         """{pair names: {joint name: R_J (m)}}: the bounds the check uses."""
@@ -157,7 +162,7 @@ class SelfContactCertificate:
                 after the last sample.
         """
         if self.reason:
-            return SelfContactCheck(False, -math.inf, ("", ""), 0, self.reason)
+            return self.refusal
         if not self._pairs:
             return SelfContactCheck(True, math.inf, ("", ""), 0)
         q = np.asarray(positions, dtype=float)
@@ -204,12 +209,12 @@ class SelfContactCertificate:
 
     # -- construction ----------------------------------------------------------------------
 
-    def _pair(self, inspector, geometry_a, geometry_b, joints) -> _Pair:
+    def _pair(self, inspector, geometry_a, geometry_b) -> _Pair:
         plant = self._plant
         body_a = plant.GetBodyFromFrameId(inspector.GetFrameId(geometry_a))
         body_b = plant.GetBodyFromFrameId(inspector.GetFrameId(geometry_b))
-        chain_a = self._chain(body_a, joints)
-        chain_b = self._chain(body_b, joints)
+        chain_a = joint_path(plant, body_a)
+        chain_b = joint_path(plant, body_b)
         shared = {j.index() for j in chain_a} & {j.index() for j in chain_b}
         indices, radii = [], []
         for chain, geometry in ((chain_a, geometry_a), (chain_b, geometry_b)):
@@ -232,16 +237,6 @@ class SelfContactCertificate:
         return _Pair(geometry_a, geometry_b,
                      (inspector.GetName(geometry_a), inspector.GetName(geometry_b)),
                      np.array(indices, int), np.array(radii, float))
-
-    def _chain(self, body, joints) -> list:
-        """The joints from the world down to ``body``, base first."""
-        by_child = {j.child_body().index(): j for j in joints}
-        chain = []
-        while body.index() in by_child:
-            joint = by_child[body.index()]
-            chain.append(joint)
-            body = joint.parent_body()
-        return chain[::-1]
 
 
 def _child_origin(joint) -> np.ndarray:

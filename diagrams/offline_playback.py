@@ -275,15 +275,11 @@ def play_path(scenario: Scenario, positions, *, q_start, duration_s: float, stat
         # The robot's own model (AddOnboardRobot builds it from these settings).
         arm = dataclasses.replace(scenario.onboard, arm=scenario.arm).arm_description
         certificate = self_contact_certificate(arm)
-        if certificate.reason:
-            check = SelfContactCheck(False, -math.inf, ("", ""), 0, certificate.reason)
-        else:
+        check = certificate.refusal
+        if check is None:
             logs = _play(scenario, positions, q_start, duration_s, states, name, False)
+            # [q; v] of the same model: check() refuses states of another width.
             plant_state = logs["plant_state"].values
-            width = certificate.num_positions + certificate.num_velocities
-            if plant_state.shape[1] != width:
-                raise RuntimeError(f"the playback's plant has {plant_state.shape[1]} states; "
-                                   f"the certificate's model of {arm.name!r} has {width}")
             check = certificate.check(plant_state[:, :certificate.num_positions],
                                       plant_state[:, certificate.num_positions:],
                                       scenario.onboard.tracker.period_s)

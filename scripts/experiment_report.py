@@ -320,20 +320,45 @@ def _cell_section(cell: str, summary: dict, claims: dict, figures, kf_form: str)
     return lines
 
 
+def _plant_run_counts(records) -> dict:
+    """How the plant runs of the records were made: "reused" (another method's run, same
+    packets), "certified" (free of self-contact, without collision geometry),
+    "with_geometry", and "geometry_unknown" (records kept from before the field existed)."""
+    counts = dict.fromkeys(("reused", "certified", "with_geometry", "geometry_unknown"), 0)
+    for record in records:
+        if "metrics" not in record:          # C8 and failed runs: no plant run of their own
+            continue
+        if record.get("playback_reused"):
+            counts["reused"] += 1
+        else:
+            counts[{False: "certified", True: "with_geometry"}.get(
+                record.get("contact_geometry"), "geometry_unknown")] += 1
+    return counts
+
+
+def _plant_runs_text(meta: dict) -> str:
+    """The report's clauses on the plant runs (empty where there is nothing to say)."""
+    text = ""
+    if meta.get("reused"):
+        text += (f"; {meta['reused']} of them sent the same packets as another method of "
+                 "their demonstration and reuse its plant run")
+    if meta.get("certified") or meta.get("with_geometry"):
+        text += (f"; of the plant runs, {meta['certified']} were certified free of "
+                 f"self-contact (no two links that could touch came within "
+                 f"{CLEARANCE_M * 1e3:g} mm, with a margin for the motion between the 10 ms "
+                 f"samples) and ran without the arm's collision geometry, "
+                 f"{meta['with_geometry']} ran with it")
+        if meta.get("geometry_unknown"):
+            text += f", {meta['geometry_unknown']} kept from earlier runs do not say"
+    return text
+
+
 def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figures, meta) -> str:
     lines = [
         "# telesmooth experiment: the paper's claims on real human demonstrations",
         "",
         f"{meta['num_tasks']} tasks ({meta['num_runs']} simulations of the chain"
-        + (f"; {meta['reused']} of them sent the same packets as another method of their "
-           "demonstration and reuse its plant run" if meta.get("reused") else "")
-        + (f"; of the plant runs, {meta['certified']} were certified free of self-contact "
-           f"(no two links that could touch came within {CLEARANCE_M * 1e3:g} mm, with a "
-           "margin for the motion between the 10 ms samples) and ran without the arm's "
-           f"collision geometry, {meta['with_geometry']} ran with it"
-           + (f", {meta['geometry_unknown']} kept from earlier runs do not say"
-              if meta.get("geometry_unknown") else "")
-           if meta.get("certified") or meta.get("with_geometry") else "")
+        + _plant_runs_text(meta)
         + f"); this run computed {meta['computed']} of them on {meta['workers']} in "
         f"{meta['wall_s']:.0f} s"
         + (f", the others were kept from earlier runs ({meta['kept']})" if meta['kept'] else "")
@@ -628,13 +653,7 @@ def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, 
               for cell, summary in summaries.items()}
     mapping = base.haptic.lasa_mapping
     meta = {**meta, "num_tasks": len(tasks), "num_runs": sum(t.kind == "run" for t in tasks),
-            "reused": sum(bool(r.get("playback_reused")) for r in records),
-            "certified": sum(r.get("contact_geometry") is False
-                             and not r.get("playback_reused") for r in records),
-            "with_geometry": sum(r.get("contact_geometry") is True
-                                 and not r.get("playback_reused") for r in records),
-            "geometry_unknown": sum("metrics" in r and "contact_geometry" not in r
-                                    and not r.get("playback_reused") for r in records),
+            **_plant_run_counts(records),
             "missing": missing,
             "mapping": ", ".join(f"{f.name} = {getattr(mapping, f.name)}"
                                  for f in dataclasses.fields(mapping)),

@@ -553,6 +553,18 @@ def _read_only(logs: dict) -> dict:
     return logs
 
 
+def _how_played(run: MethodRun, duration_s: float) -> str:
+    """How a run's plant run was made, for the progress line of :func:`compare_methods`."""
+    if run.playback_reused:
+        return "the same packets as an earlier method: its plant run reused"
+    text = f"{duration_s:.1f} s simulated in {run.timings_s['simulate']:.1f} s"
+    check = run.self_contact
+    if check is None or check.certified:
+        return text
+    why = f": {check.reason}" if check.reason else ""
+    return f"{text} with the arm's collision geometry (self-contact not excluded{why})"
+
+
 def set_improvement_ratios(runs: dict, reference: str = _REFERENCE) -> None:
     """Sets P of every run in ``runs`` (name → MethodRun) against ``runs[reference]``."""
     e_org = runs[reference].response_error_m
@@ -603,13 +615,7 @@ def compare_methods(scenario: Scenario, methods=METHODS, *,
         run = run_method(setup, method, offline_solver=offline_solver, playbacks=playbacks)
         runs[method] = run
         set_improvement_ratios({_REFERENCE: runs[_REFERENCE], method: run})
-        check = run.self_contact
-        played = ("the same packets as an earlier method: its plant run reused"
-                  if run.playback_reused else
-                  f"{setup.duration_s:.1f} s simulated in {run.timings_s['simulate']:.1f} s"
-                  + ("" if check is None or check.certified else
-                     " with the arm's collision geometry (self-contact not excluded"
-                     + (f": {check.reason})" if check.reason else ")")))
         say(f"[{number}/{len(methods)}] {method}: smoothed in {run.timings_s['smooth']:.2f} s, "
-            f"{played}; P = {run.metrics['improvement_ratio_percent']:.1f} %")
+            f"{_how_played(run, setup.duration_s)}; "
+            f"P = {run.metrics['improvement_ratio_percent']:.1f} %")
     return Comparison(setup=setup, runs=runs)
