@@ -39,7 +39,9 @@ class SimulationRecord:
         scenario: The scenario run.
         joint_names: Joint order of every joint array.
         duration_s: Simulated time, s.
-        wall_time_s: Wall-clock time of the simulation, s.
+        wall_time_s: Wall-clock time of the simulation (the simulator's advance only: not the
+            diagram's build before it nor the logs read after it), s.
+        cpu_time_s: CPU time of this process over the same window as ``wall_time_s``, s.
         target_t_s, q_target: IK joint targets (the pre-simulator's newest command), 100 Hz.
         collision_detected, min_distance_m: pre-simulator flags at 100 Hz.
         packet_seq, packet_t_s, packet_state: every uplink packet: number, send time and
@@ -60,6 +62,7 @@ class SimulationRecord:
     joint_names: tuple[str, ...]
     duration_s: float
     wall_time_s: float
+    cpu_time_s: float
     target_t_s: np.ndarray
     q_target: np.ndarray
     collision_detected: np.ndarray
@@ -169,7 +172,7 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
     duration_s = run_duration_s(scenario, handles.ground.recording, duration_s)
     simulator = make_simulator(handles.diagram, scenario.onboard)
     simulator.Initialize()
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     # Ticks at exactly duration_s are not run by AdvanceTo; advance just past the last one.
     end = duration_s + 1e-9
     chunks = 10
@@ -179,7 +182,7 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
             elapsed = time.perf_counter() - start
             progress(f"simulated {simulator.get_context().get_time():.1f} / {duration_s:.1f} s "
                      f"({100 * chunk // chunks:3d} %), wall {elapsed:6.1f} s")
-    wall = time.perf_counter() - start
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu_start
     context = simulator.get_context()
 
     def log(name):
@@ -200,7 +203,7 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
     tracker = tracker_record(log("tracker").data().T)
     return SimulationRecord(
         scenario=scenario, joint_names=handles.ground.joint_names, duration_s=duration_s,
-        wall_time_s=wall,
+        wall_time_s=wall, cpu_time_s=cpu,
         target_t_s=log("q_target").sample_times().copy(), q_target=log("q_target").data().T.copy(),
         collision_detected=log("collision_detected").data()[0].copy(),
         min_distance_m=log("min_distance").data()[0].copy(),
