@@ -95,3 +95,29 @@ def test_chain_speed_known_figures():
     assert row["call_real_time_factor"] == pytest.approx(5.0)
     assert (row["wall_s"], row["cpu_s"], row["call_wall_s"], row["call_cpu_s"]) == (
         0.5, 0.4, 2.0, 1.9)
+
+
+def test_the_simulation_table_puts_each_figure_under_its_own_header():
+    bare = {"arm": "space_arm", "time_step_s": 0.0, "simulated_s": 20.0, "wall_s": 0.25,
+            "real_time_factor": 80.0, "real_time_factor_cpu": 79.0, "peak_rss_mb": 200.0}
+    chain = {"scenario": "OneOfEverything", "arm": "space_arm", "time_step_s": 0.0,
+             **bench_core.chain_speed(9.0, 0.5, 0.45, 0.8, 0.75),
+             "over_bare_plant_continuous": 0.9 / 79.0 * 20.0, "peak_rss_mb": 316.0,
+             "instrumented_cpu_s": 0.5, "stage_share": {}, "stage_cpu_s": {}, "drake_cpu_s": 0.3}
+    text = bench_core._table([], [], {"bare_plant": [bare], "chain": [chain]})
+    lines = text.splitlines()
+    start = lines.index(next(line for line in lines if line.startswith("| what |")))
+    rows = lines[start:start + 4]
+    del rows[1]     # the separator
+    assert all(line.startswith("| ") for line in rows)
+    header = [cell.strip() for cell in rows[0].strip("|").split("|")]
+    for line in rows[1:3]:
+        cells = dict(zip(header, (c.strip() for c in line.strip("|").split("|")), strict=True))
+        if cells["what"].startswith("`telesmooth simulate`"):
+            assert cells["×real time"] == "18.0" and cells["×real time (CPU)"] == "20.0"
+            assert cells["whole call [s]"] == "0.80"
+            assert cells["×real time (whole call)"] == "11.2"
+        else:
+            assert cells["×real time"] == "80.0" and cells["×real time (CPU)"] == "79.0"
+            assert cells["whole call [s]"] == "–"
+        assert cells["peak [MB]"] in ("200", "316")
