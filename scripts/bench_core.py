@@ -440,10 +440,14 @@ def chain_speed(simulated_s: float, wall_s: float, cpu_s: float, call_wall_s: fl
                 call_cpu_s: float) -> dict:
     """The figures of one chain row: the run's real-time factors (simulated / wall and / CPU
     time of the simulator's advance) and the whole ``simulate`` call's (build + run + logs)."""
+    return {**_run_speed(simulated_s, wall_s, cpu_s), "call_wall_s": call_wall_s,
+            "call_cpu_s": call_cpu_s, "call_real_time_factor": simulated_s / call_wall_s}
+
+
+def _run_speed(simulated_s: float, wall_s: float, cpu_s: float) -> dict:
+    """A run's real-time factors over one window: simulated / wall and simulated / CPU time."""
     return {"simulated_s": simulated_s, "wall_s": wall_s, "cpu_s": cpu_s,
-            "real_time_factor": simulated_s / wall_s, "real_time_factor_cpu": simulated_s / cpu_s,
-            "call_wall_s": call_wall_s, "call_cpu_s": call_cpu_s,
-            "call_real_time_factor": simulated_s / call_wall_s}
+            "real_time_factor": simulated_s / wall_s, "real_time_factor_cpu": simulated_s / cpu_s}
 
 
 def _chain_shares_cell(name: str, duration_s: float | None) -> dict:
@@ -501,9 +505,7 @@ def _bare_plant_cell(arm: str, time_step_s: float, duration_s: float) -> dict:
     wall, cpu = time.perf_counter(), time.process_time()
     simulator.AdvanceTo(duration_s)
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-    return {"arm": arm, "time_step_s": time_step_s, "simulated_s": duration_s, "wall_s": wall,
-            "cpu_s": cpu, "real_time_factor": duration_s / wall,
-            "real_time_factor_cpu": duration_s / cpu}
+    return {"arm": arm, "time_step_s": time_step_s, **_run_speed(duration_s, wall, cpu)}
 
 
 def bench_simulation(duration_s: float | None, bare_duration_s: float = 20.0):

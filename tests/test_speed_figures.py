@@ -106,7 +106,7 @@ def test_the_simulation_table_puts_each_figure_under_its_own_header():
              "instrumented_cpu_s": 0.5, "stage_share": {}, "stage_cpu_s": {}, "drake_cpu_s": 0.3}
     text = bench_core._table([], [], {"bare_plant": [bare], "chain": [chain]})
     lines = text.splitlines()
-    start = lines.index(next(line for line in lines if line.startswith("| what |")))
+    start = next(i for i, line in enumerate(lines) if line.startswith("| what |"))
     rows = lines[start:start + 4]
     del rows[1]     # the separator
     assert all(line.startswith("| ") for line in rows)
