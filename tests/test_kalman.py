@@ -58,7 +58,10 @@ def test_joints_are_independent():
     for j in range(3):
         single = JerkModel.make(0.25, model.sigma[j], model.r[j], num_joints=1)
         alone = rts_smoother(z[:, j:j + 1], single, rest_prior(z[0, j:j + 1], single)).mean
-        np.testing.assert_allclose(both[:, j], alone[:, 0], rtol=1e-13, atol=1e-15)
+        # To round-off of each state's scale: three joints' products go through BLAS's
+        # matrix-matrix kernel, one joint's through its matrix-vector one.
+        scale = np.abs(alone[:, 0]).max(axis=0)      # per state: q, its 1st..3rd derivative
+        assert np.all(np.abs(both[:, j] - alone[:, 0]) <= 1e-12 * scale), j
 
 
 def test_smoother_follows_a_constant_exactly():
