@@ -334,8 +334,15 @@ def test_a_udpm_burst_reaches_the_onboard_subscriber_whole():
     drake_simulator.Initialize()
     for k in range(40):
         sender.publish(TELEOP_JOINT_COMMAND, _command(k, [0.0, 0.0]).encode())
-    time.sleep(0.3)                                   # all of them are in the sockets
-    for sim in (simulator, small_simulator, drake_simulator):
+    # LCM's reader threads move the packets from the sockets into the queues: wait (step
+    # the big queue's simulator) until its queue has them all, on a busy machine as well.
+    deadline, t = time.monotonic() + 20.0, 0.0
+    while len(_packet_seqs(simulator, dut)) < 40 and time.monotonic() < deadline:
+        time.sleep(0.05)
+        t += 0.01
+        simulator.AdvanceTo(t)
+    time.sleep(0.2)                   # the other two subscriptions' threads likewise
+    for sim in (small_simulator, drake_simulator):
         sim.AdvanceTo(0.01)
     assert _packet_seqs(simulator, dut) == list(range(40))
     # The queue capacity is what keeps them: a queue of 3 keeps only part of the burst.

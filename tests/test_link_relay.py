@@ -52,16 +52,20 @@ class _Relay:
             self.lines.put(line)
 
     def wait_ready(self):
-        deadline = time.monotonic() + READY_TIMEOUT_S
+        self.wait_for_line(lambda line: line.startswith("link-relay: ready"), "ready")
+
+    def wait_for_line(self, wanted, what, timeout_s=READY_TIMEOUT_S):
+        """Waits for a stderr line for which ``wanted(line)`` is true."""
+        deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             try:
                 line = self.lines.get(timeout=0.1)
             except queue.Empty:
                 assert self.process.poll() is None, "".join(self.stderr)
                 continue
-            if line.startswith("link-relay: ready"):
+            if wanted(line):
                 return
-        raise AssertionError("relay not ready: " + "".join(self.stderr))
+        raise AssertionError(f"relay not {what}: " + "".join(self.stderr))
 
     def finish(self, terminate=True):
         if terminate:
@@ -207,9 +211,11 @@ def test_seeded_faults_match_the_model_and_the_delay_is_observed(tmp_path):
 
 
 def test_sigint_stops_the_relay_and_writes_the_report(tmp_path):
-    dut = _Relay(tmp_path, "--link", "{delay_s: 5.0}")
+    dut = _Relay(tmp_path, "--link", "{delay_s: 60.0}")
     dut.wait_ready()
     _exchange(4, tail_s=0.2)
+    # Its progress line (once a second) says when it has all four, however loaded the machine.
+    dut.wait_for_line(lambda line: "uplink 4 received" in line, "given all four packets")
     dut.process.send_signal(signal.SIGINT)
     report = dut.finish(terminate=False)
     assert report["stopped_by"] == "SIGINT"
