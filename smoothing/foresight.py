@@ -50,6 +50,9 @@ __all__ = ["ContinuationResult", "ForesightSweep", "best_continuation", "foresig
 
 _HISTORY = 3
 _TOLERANCE = 1e-12
+_LOOSER_TOLERANCES = (1e-10, 1e-8)
+"""Tried in turn when Clarabel stops short of the requested tolerance (it may report
+InsufficientProgress at 1e-12 on some problems and some CPUs); the status names the one met."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -62,7 +65,8 @@ class ContinuationResult:
             failed).
         squared_error: Σ_{i ≥ s} (p*_i − z_i)² per joint, rad², (J,).
         is_success: per joint, (J,).
-        status: per joint, the solver's result ("SolutionResult.kSolutionFound", or why not).
+        status: per joint, the solver's result ("SolutionResult.kSolutionFound", with
+            " at tolerance 1e-10" when only a looser tolerance was met, or why not).
     """
 
     start: int
@@ -100,7 +104,9 @@ def best_continuation(commands, reference, start: int, dt_s: float, *, max_accel
         max_velocity: v_max [rad/s], scalar or per joint, or None (no limit).
         rest: q_rest, rad, (J,): the pose held before p_0 (default z_0).
         joint_names: labels for errors.
-        tolerance: Clarabel's gap and feasibility tolerances.
+        tolerance: Clarabel's gap and feasibility tolerances; if it stops short of them, the
+            looser ones of ``_LOOSER_TOLERANCES`` are tried in turn (the status names the
+            tolerance met when it is not this one).
 
     Returns:
         ContinuationResult; a joint whose prefix breaks a limit (no continuation exists) or
@@ -131,8 +137,7 @@ def best_continuation(commands, reference, start: int, dt_s: float, *, max_accel
     limits = [(order, limit * dt_s**order) for order, limit in ((1, vel), (2, acc), (3, jerk))]
     rows = {order: _limit_rows(num_samples, start, order) for order, _ in limits}
     solver, options = ClarabelSolver(), SolverOptions()
-    for name in ("tol_gap_abs", "tol_gap_rel", "tol_feas", "tol_ktratio"):
-        options.SetOption(solver.id(), name, tolerance)
+    ladder = (tolerance, *(t for t in _LOOSER_TOLERANCES if t > tolerance))
     unit = QuadraticCost(np.array([[1.0]]), np.zeros(1), 0.0, is_convex=True)
     positions = p.copy()
     squared = np.full(num_joints, np.nan)
@@ -161,8 +166,14 @@ def best_continuation(commands, reference, start: int, dt_s: float, *, max_accel
                           f"{_joint_label(j, joint_names)}")
             positions[start:, j] = np.nan
             continue
-        result = solver.Solve(prog, None, options)
-        status.append(str(result.get_solution_result()))
+        for tol in ladder:
+            for name in ("tol_gap_abs", "tol_gap_rel", "tol_feas", "tol_ktratio"):
+                options.SetOption(solver.id(), name, tol)
+            result = solver.Solve(prog, None, options)
+            if result.is_success():
+                break
+        status.append(str(result.get_solution_result()) + (
+            f" at tolerance {tol:g}" if tol != tolerance else ""))
         if not result.is_success():
             positions[start:, j] = np.nan
             continue

@@ -9,7 +9,9 @@ from core_fixtures import operator_recording
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from oracles import solve_dense_qp
+from pydrake.solvers import ClarabelSolver, SolverOptions
 
+from telesmooth.smoothing import foresight
 from telesmooth.smoothing.foresight import best_continuation, foresight_sweep
 from telesmooth.smoothing.online_hard import online_hard_run
 
@@ -107,6 +109,51 @@ def test_a_reference_within_the_limits_is_its_own_continuation():
     dut = best_continuation(z, z, 30, DT, max_acceleration=A_MAX, max_jerk=J_MAX)
     np.testing.assert_allclose(dut.positions, z, rtol=0, atol=1e-8)
     assert np.all(dut.squared_error < 1e-14)
+
+
+class _StopsShortBelow:
+    """Clarabel, except that asked for a tolerance under ``floor`` it is given one iteration
+    (and so stops short, as Clarabel itself may at 1e-12 on another CPU)."""
+
+    def __init__(self, floor):
+        self._solver, self.floor, self.asked = ClarabelSolver(), floor, []
+
+    def id(self):
+        return self._solver.id()
+
+    def Solve(self, prog, guess, options):  # noqa: N802 (Drake's name)
+        asked = dict(options.options[self.id().name()])
+        self.asked.append(asked["tol_feas"])
+        if asked["tol_feas"] < self.floor:
+            options = SolverOptions()
+            for name, value in {**asked, "max_iter": 1}.items():
+                options.SetOption(self.id(), name, value)
+        return self._solver.Solve(prog, guess, options)
+
+
+def test_a_solve_that_stops_short_is_retried_at_a_looser_tolerance(monkeypatch):
+    z, commands = _stream(seed=3)
+    stub = _StopsShortBelow(1e-11)
+    monkeypatch.setattr(foresight, "ClarabelSolver", lambda: stub)
+    dut = best_continuation(commands, z, 7, DT, max_acceleration=A_MAX, max_jerk=J_MAX)
+    assert stub.asked == [1e-12, 1e-10] * 2                # per joint: 1e-12 fails, 1e-10 holds
+    assert dut.is_success.all()
+    assert dut.status == ("SolutionResult.kSolutionFound at tolerance 1e-10",) * 2
+    expected = _dense_continuation(commands, z, 7, A_MAX, J_MAX)
+    np.testing.assert_allclose(dut.positions, expected, rtol=0, atol=2e-6)
+
+
+def test_a_solve_that_stops_short_at_every_tolerance_is_a_failure(monkeypatch):
+    z, commands = _stream(seed=3)
+    stub = _StopsShortBelow(1.0)
+    monkeypatch.setattr(foresight, "ClarabelSolver", lambda: stub)
+    dut = best_continuation(commands, z, 7, DT, max_acceleration=A_MAX, max_jerk=J_MAX)
+    assert stub.asked == [1e-12, 1e-10, 1e-8] * 2
+    assert not dut.is_success.any() and np.isnan(dut.squared_error).all()
+    assert np.isnan(dut.positions[7:]).all()
+    np.testing.assert_array_equal(dut.positions[:7], commands[:7])
+    assert all(status.endswith("at tolerance 1e-08") and "kSolutionFound" not in status
+               for status in dut.status), dut.status
 
 
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
