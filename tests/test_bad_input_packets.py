@@ -242,7 +242,7 @@ def test_the_onboard_process_accounts_for_every_packet_of_a_flood(tmp_path, monk
     monkeypatch.chdir(tmp_path)
     url = _url()
     sent = {"packets": 0}
-    listening = threading.Event()
+    listening, flooded = threading.Event(), threading.Event()
     log = processes._log
 
     def spy(message):
@@ -262,6 +262,7 @@ def test_the_onboard_process_accounts_for_every_packet_of_a_flood(tmp_path, monk
             if k % 250 == 0:
                 bus.publish(TELEOP_JOINT_COMMAND, _command(k // 250))
                 sent["packets"] += 1
+        flooded.set()
 
     thread = threading.Thread(target=flood)
     thread.start()
@@ -271,6 +272,7 @@ def test_the_onboard_process_accounts_for_every_packet_of_a_flood(tmp_path, monk
     duration_s = 8
     status = main(["onboard", "--lcm-url", url, "--no-auth", "--duration", str(duration_s),
                    "--realtime", "1", "--out", "out"])
+    assert flooded.is_set(), "the flood outlasted the onboard: the count below would not close"
     thread.join()
     assert status == 0, capsys.readouterr().err
     counts = json.loads((tmp_path / "out" / "onboard_counts.json").read_text())
