@@ -98,12 +98,15 @@ class BandedIpOptions:
         dual_tolerance: ‖∇ Lagrangian‖∞ relative to the size of its terms (round-off leaves
             ~1e-9 at 4 Hz, docs/method.md §2.3 notes, in the absolute gradient; this relative
             measure reaches 1e-10).
-        max_iterations: Newton steps before giving up (200). Most problems converge in
-            12–60. Before the Newton steps were refined (``BandedQp._refine``) some took
-            hundreds or never converged: 16 of the offline-hard problems of the 210 LASA
-            demonstrations at 4× the hand's speed needed more than 200 steps (BendedLine/1's
-            wrist 258) and BendedLine/2's shoulder did not converge in 1000; refined, each of
-            the 16 converges in 12–20 steps.
+        max_iterations: Newton steps before giving up (200). Before the Newton steps were
+            refined (``BandedQp._refine``) some took hundreds or never converged: 16 of the
+            offline-hard problems of the 210 LASA demonstrations at 4× the hand's speed
+            needed more than 200 steps (BendedLine/1's wrist 258) and BendedLine/2's
+            shoulder did not converge in 1000. Refined, all 630 joints converge: median 13
+            steps, 99th percentile 17–20, but the slowest joint depends on the BLAS's
+            last bits: 90 (Zshape/6), 65 (BendedLine/2) and 122 (LShape/0) steps with
+            OpenBLAS's SkylakeX, Sandybridge and Haswell kernels, a different problem each
+            time.
         linear_solver: "auto", "cholesky" or "qr" (module docstring).
     """
 
@@ -807,7 +810,9 @@ def _max_step(values, steps) -> float:
     alpha = math.inf
     for v, dv in zip(values, steps):
         if v.size:
-            ratio = np.divide(v, -dv, out=np.full_like(v, math.inf), where=dv < 0)
+            # A Δv < 0 so small that v / −Δv overflows does not limit the step: inf is right.
+            with np.errstate(over="ignore"):
+                ratio = np.divide(v, -dv, out=np.full_like(v, math.inf), where=dv < 0)
             alpha = min(alpha, float(ratio.min()))
     return alpha
 

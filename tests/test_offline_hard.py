@@ -181,7 +181,10 @@ def test_lasa_demonstrations_that_stalled_converge_to_the_mathematical_programs_
     result = solve_offline_hard(z, setup.period_s, max_acceleration=a_max, max_jerk=j_max,
                                 start_position=z[0], rest_at_end=True)
     assert result.status == ("converged",) * 3
-    assert np.all(result.iterations <= 60), result.iterations
+    # Before: 258 steps, and no convergence in 1000. Now 12–20 on these three with some BLAS
+    # kernels, 65 on BendedLine/2's shoulder with others (OpenBLAS's Sandybridge kernels):
+    # the count depends on the last bits, so the bound has room, well below the old stall.
+    assert np.all(result.iterations <= 150), result.iterations
     for j in range(3):
         expected = _clarabel_offline_hard(z[:, j], z[0, j], setup.period_s, a_max[j], j_max[j])
         np.testing.assert_allclose(result.positions[:, j], expected, atol=1e-6)
