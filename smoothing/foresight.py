@@ -44,7 +44,7 @@ from telesmooth.arms.joint_vectors import (
     check_finite_per_joint,
     check_trajectory,
 )
-from telesmooth.smoothing.offline import finite_difference_operator
+from telesmooth.smoothing.offline import finite_difference_operator, tolerance_ladder
 
 __all__ = ["ContinuationResult", "ForesightSweep", "best_continuation", "foresight_sweep"]
 
@@ -137,7 +137,7 @@ def best_continuation(commands, reference, start: int, dt_s: float, *, max_accel
     limits = [(order, limit * dt_s**order) for order, limit in ((1, vel), (2, acc), (3, jerk))]
     rows = {order: _limit_rows(num_samples, start, order) for order, _ in limits}
     solver, options = ClarabelSolver(), SolverOptions()
-    ladder = (tolerance, *(t for t in _LOOSER_TOLERANCES if t > tolerance))
+    ladder = tolerance_ladder(tolerance, _LOOSER_TOLERANCES)
     unit = QuadraticCost(np.array([[1.0]]), np.zeros(1), 0.0, is_convex=True)
     positions = p.copy()
     squared = np.full(num_joints, np.nan)

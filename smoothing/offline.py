@@ -109,6 +109,12 @@ TOLERANCE_LADDER = (1e-12, 1e-11, 1e-10, 1e-9, 1e-8)
 reported per joint."""
 
 
+def tolerance_ladder(tolerance: float, looser=TOLERANCE_LADDER) -> tuple:
+    """``tolerance`` first, then each value of ``looser`` above it: the tolerances a solve
+    that stops short is tried at in turn."""
+    return (float(tolerance), *(tol for tol in looser if tol > tolerance))
+
+
 def finite_difference_operator(
     num_samples: int, order: int, *, history: int = 0, hold_at_end: int = 0
 ) -> tuple[sparse.csr_matrix, np.ndarray]:
@@ -240,7 +246,7 @@ def solve_offline_cks(
     clarabel = ClarabelSolver()
     options = SolverOptions()
     solvers_used = []
-    ladder = [float(tolerance)] + [tol for tol in TOLERANCE_LADDER if tol > tolerance]
+    ladder = tolerance_ladder(tolerance)
     reached = []
 
     def meets_the_limits(joint_states, j):
