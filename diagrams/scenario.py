@@ -65,9 +65,12 @@ from telesmooth.user_input import (
 
 __all__ = [
     "BUILTIN_SCENARIOS_FILE",
+    "CHAINS",
     "HAPTIC_SOURCES",
     "HapticScenario",
+    "LinkScenario",
     "Scenario",
+    "describe_chain",
     "describe_operator",
     "load_scenario",
     "make_haptic_recording",
@@ -129,27 +132,24 @@ class HapticScenario:
                              "(x_m, y_m, phi_rad)")
 
 
+CHAINS = ("deployed", "paper")
+"""The in-process chains (``Scenario.chain``): ``"deployed"`` puts the onboard packet checks
+and link guard between the uplink and the robot, as the onboard process runs them;
+``"paper"`` lets the uplink's held command drive the robot directly, as in the paper."""
+
+
 @dataclasses.dataclass(frozen=True)
 class LinkScenario:
-    """The ground-to-onboard link of an in-process run.
+    """The ground-to-onboard link of an in-process run (``chain: deployed`` only).
 
     Attributes:
-        simulate: If true, the in-process chain sends each uplink packet the way the two
-            processes do: encoded (``JointCommandSender``), through a simulated link
-            (``LinkChannel``, with ``faults``), examined by the onboard ``JointCommandReceiver``
-            and passed through the ``LinkGuard`` to the robot. If false (default) the
-            uplink's held command drives the robot directly (the paper's set-up). Any
-            enabled fault turns it on.
         faults: Delay, jitter, loss, duplication, reordering and outages of the uplink
-            (:class:`~telesmooth.link.faults.LinkFaultConfig`; seeded).
+            (:class:`~telesmooth.link.faults.LinkFaultConfig`; seeded): the same model, and
+            for the same seed the same fate of every packet, as ``telesmooth link-relay``
+            between two processes.
     """
 
-    simulate: bool = False
     faults: LinkFaultConfig = dataclasses.field(default_factory=LinkFaultConfig)
-
-    @property
-    def active(self) -> bool:
-        return self.simulate or self.faults.enabled
 
 
 @dataclasses.dataclass(frozen=True)
@@ -158,18 +158,24 @@ class Scenario:
 
     Attributes:
         arm: ``"air_bearing_arm"`` (3 joints in a plane) or ``"space_arm"`` (6-DOF).
+        chain: ``"deployed"`` (default): in one process every uplink packet goes the way it
+            goes between the two processes: formed and encoded by the ground's sender,
+            carried by the simulated link (``link``), examined by the onboard receiver and
+            passed through the onboard link guard, which keeps what reaches the robot within
+            the limits. ``"paper"``: the uplink's held command drives the robot directly
+            (the paper's set-up; ``compare`` and ``experiment`` play their commands so).
         haptic: The operator source.
         inverse_kinematics, collision_checker, fifo, smoother, uplink: the ground stages.
         workspace: Obstacles and bounding box; None = the arm's default scenario.
         period_mean: If true the FIFO samples the mean of each period instead of the latest
             IK target (the smoother's r is then divided by the samples per period).
         onboard: The flexible-joint plant (its ``arm`` is set from ``arm``).
-        command_receiver: The onboard LCM command receiver (two-process runs, and in-process
-            runs with ``link.simulate``).
+        command_receiver: The onboard command receiver (the onboard process, and the
+            deployed chain in one process).
         link_guard: The onboard link guard: the FD limits enforced on every command, a
             jerk-limited ramp-down when commands stop, and the converging re-join when they
             resume (same runs as ``command_receiver``; ``telesmooth.safety.guard``).
-        link: The simulated link of an in-process run.
+        link: The simulated link of an in-process run of the deployed chain.
         lcm_url: LCM URL of the ground/onboard processes.
         publish_offset_s: Delay after each uplink tick at which the packet is published, s.
         settle_s: Extra simulated time after the operator's recording ends, s.
@@ -178,6 +184,7 @@ class Scenario:
     """
 
     arm: str = "air_bearing_arm"
+    chain: str = "deployed"
     haptic: HapticScenario = dataclasses.field(default_factory=HapticScenario)
     inverse_kinematics: InverseKinematicsConfig = dataclasses.field(
         default_factory=InverseKinematicsConfig)
@@ -202,6 +209,11 @@ class Scenario:
     def __post_init__(self) -> None:
         if self.arm not in ARMS:
             raise ValueError(f"arm = {self.arm!r} must be one of {sorted(ARMS)}")
+        if self.chain not in CHAINS:
+            raise ValueError(unknown_choice("chain", self.chain, CHAINS, noun="chains"))
+        if self.chain == "paper" and self.link.faults.enabled:
+            raise ValueError("link.faults need chain: deployed (in the paper's chain the "
+                             "uplink drives the robot directly, with no link between them)")
         if self.onboard.arm != self.arm:
             object.__setattr__(self, "onboard", dataclasses.replace(self.onboard, arm=self.arm))
         periods = {"fifo.period_s": self.fifo.period_s,
@@ -266,6 +278,19 @@ def describe_operator(scenario: Scenario) -> str:
     if haptic.source == "file":
         return f"the recording `{haptic.file}`"
     return "a live haptic device over LCM"
+
+
+def describe_chain(scenario: Scenario) -> str:
+    """Which chain a run simulated, for the first lines of a report."""
+    if scenario.chain == "paper":
+        return ("the paper's chain: the uplink's held command drives the robot directly, "
+                "with no onboard packet checks and no link guard")
+    faults = scenario.link.faults
+    link = ("a perfect link" if not faults.enabled
+            else f"the seeded link fault model ({faults.describe()})")
+    return ("the deployed chain: every uplink packet crosses " + link + ", is examined by "
+            "the onboard receiver and passes the onboard link guard, which keeps what reaches "
+            "the robot within the limits (as `telesmooth onboard` runs it)")
 
 
 def make_haptic_recording(scenario: Scenario) -> HapticRecording | None:

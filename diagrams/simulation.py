@@ -18,22 +18,94 @@ import numpy as np
 
 from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_forward_kinematics
-from telesmooth.diagrams.scenario import Scenario, describe_operator, make_haptic_recording
+from telesmooth.diagrams.scenario import (
+    Scenario,
+    describe_chain,
+    describe_operator,
+    make_haptic_recording,
+)
 from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram, uplink_packets
 from telesmooth.diagrams.visualization import save_meshcat_recording, start_meshcat_recording
 from telesmooth.smoothing.metrics import smoothing_metrics, tracking_errors
 from telesmooth.systems.flexible_arm import make_simulator
 from telesmooth.systems.laser_tracker import tracker_record
 
-__all__ = ["ResponseErrors", "SimulationRecord", "plant_summary", "plant_text",
+__all__ = ["GuardRecord", "ResponseErrors", "SimulationRecord", "ground_fields", "guard_metrics",
+           "guard_record", "plant_summary", "plant_text", "received_response_errors",
            "record_meshcat_html", "response_delay_s", "response_errors", "response_instants",
-           "run_duration_s", "run_metrics", "sample_at", "simulate",
-           "tool_positions"]
+           "run_duration_s", "run_metrics", "sample_at", "simulate", "tool_positions"]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class GuardRecord:
+    """What the onboard link guard of a deployed chain did, from its logs.
+
+    Every logger publishes the state before the updates of its instant (Drake's x⁻): the row
+    logged at t holds what the poll at t − poll_period_s decided. Each value here is dated
+    at the poll that decided it.
+
+    Attributes:
+        poll_period_s: The guard's (and the receiver's) poll period, s.
+        poll_t_s: The instant of every poll, s, (P,).
+        mode: The guard's mode after each poll (index in
+            :data:`~telesmooth.systems.link_guard.GUARD_MODES`), (P,).
+        stream_distance_rad: max over joints of |command − newest accepted packet| after each
+            poll, rad, (P,).
+        command_t_s, q_commanded: Every command the guard issued (what reached the robot's
+            interpolator) and the poll that issued it, s (K,) and rad (K, J).
+        q_followed: The newest accepted packet at that poll, rad, (K, J): the packet the
+            command followed (TRACK, RESUMING) or the stream while it stopped or held.
+        limited_count: Commands that followed a packet but differ from it (the limiter cut
+            them to keep the limits).
+        accepted_count: Packets the receiver accepted.
+    """
+
+    poll_period_s: float
+    poll_t_s: np.ndarray
+    mode: np.ndarray
+    stream_distance_rad: np.ndarray
+    command_t_s: np.ndarray
+    q_commanded: np.ndarray
+    q_followed: np.ndarray
+    limited_count: int
+    accepted_count: int
+
+    @property
+    def num_commands(self) -> int:
+        return int(self.command_t_s.size)
+
+
+def guard_record(logs: dict, context, poll_period_s: float) -> GuardRecord:
+    """The :class:`GuardRecord` of a run from the loggers of
+    :func:`~telesmooth.diagrams.teleoperation.add_link_loggers` (logged every poll)."""
+    def data(name):
+        return logs[name].FindLog(context).data()
+
+    count_log = logs["guard_command_count"].FindLog(context)
+    # Row i was logged at t_i and holds the state the poll at t_i − poll decided.
+    poll_t = count_log.sample_times()[1:] - poll_period_s
+    count = count_log.data()[0][1:]
+    commanded = data("guard_q_commanded").T[1:]
+    accepted = data("q_accepted").T[1:]
+    # A poll issues at most one command: the rows where the count grew.
+    rows = np.flatnonzero(np.diff(np.r_[0.0, count]) > 0)
+    return GuardRecord(
+        poll_period_s=float(poll_period_s), poll_t_s=poll_t.copy(),
+        mode=data("guard_mode")[0][1:].astype(int).copy(),
+        stream_distance_rad=data("guard_stream_distance")[0][1:].copy(),
+        command_t_s=poll_t[rows].copy(), q_commanded=commanded[rows].copy(),
+        q_followed=accepted[rows].copy(),
+        limited_count=int(data("guard_limited_count")[0][-1]) if count.size else 0,
+        accepted_count=int(data("accepted_count")[0][-1]) if count.size else 0)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class SimulationRecord:
     """What a headless run produced (all arrays time-major).
+
+    A record of one side of the two processes (:mod:`telesmooth.scripts.process_report`)
+    leaves None where that side does not know a quantity: the onboard process has no
+    operator targets, collision flags or 4 Hz ticks (and its packet velocities are NaN).
 
     Attributes:
         scenario: The scenario run.
@@ -56,6 +128,8 @@ class SimulationRecord:
         initial_position_rad: The robot's start pose, rad, (J,).
         ramp_start_t_s: Every instant at which the robot's interpolator started a ramp
             towards a new command, s (sorted); None if not logged.
+        guard: In the deployed chain, what the onboard link guard did (:class:`GuardRecord`);
+            None in the paper's chain.
     """
 
     scenario: Scenario
@@ -82,6 +156,7 @@ class SimulationRecord:
     braking_distance: np.ndarray | None = None
     initial_position_rad: np.ndarray | None = None
     ramp_start_t_s: np.ndarray | None = None
+    guard: GuardRecord | None = None
 
     @property
     def num_joints(self) -> int:
@@ -185,6 +260,22 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
     wall, cpu = time.perf_counter() - start, time.process_time() - cpu_start
     context = simulator.get_context()
 
+    tracker = tracker_record(handles.logs["tracker"].FindLog(context).data().T)
+    return SimulationRecord(
+        scenario=scenario, joint_names=handles.ground.joint_names, duration_s=duration_s,
+        wall_time_s=wall, cpu_time_s=cpu, **ground_fields(handles, context),
+        tracker_t_s=tracker.t_s, q_link=tracker.q_link, q_motor=tracker.q_motor,
+        tool_position_m=tracker.tool_position_m,
+        ramp_start_t_s=np.unique(handles.logs["command_ramp"].FindLog(context).data()[0]),
+        guard=(guard_record(handles.logs, context, scenario.command_receiver.poll_period_s)
+               if handles.onboard.guard is not None else None),
+    )
+
+
+def ground_fields(handles, context) -> dict:
+    """The ground station's part of a :class:`SimulationRecord` from the loggers of
+    :func:`~telesmooth.diagrams.teleoperation.add_ground_loggers` (one process or the ground
+    process): the targets, collision flags, packets and the 4 Hz ticks, and the start pose."""
     def log(name):
         return handles.logs[name].FindLog(context)
 
@@ -200,10 +291,7 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
         packet_state = np.vstack(
             [packet_state, uplink.get_state_sent_output_port().Eval(uplink_context)])
     ticks = log("sigma")
-    tracker = tracker_record(log("tracker").data().T)
-    return SimulationRecord(
-        scenario=scenario, joint_names=handles.ground.joint_names, duration_s=duration_s,
-        wall_time_s=wall, cpu_time_s=cpu,
+    return dict(
         target_t_s=log("q_target").sample_times().copy(), q_target=log("q_target").data().T.copy(),
         collision_detected=log("collision_detected").data()[0].copy(),
         min_distance_m=log("min_distance").data()[0].copy(),
@@ -211,15 +299,11 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
         packet_state=np.asarray(packet_state, dtype=float).copy(),
         tick_t_s=ticks.sample_times().copy(), q_delayed=log("q_delayed").data().T.copy(),
         holding=log("holding").data()[0].copy(), sigma=ticks.data().T.copy(),
-        tracker_t_s=tracker.t_s, q_link=tracker.q_link, q_motor=tracker.q_motor,
-        tool_position_m=tracker.tool_position_m,
         stop_status=(log("stop_status").data()[0].copy() if "stop_status" in handles.logs
                      else None),
         braking_distance=(log("braking_distance").data().T.copy()
                           if "braking_distance" in handles.logs else None),
-        initial_position_rad=np.array(handles.ground.initial_position_rad, dtype=float),
-        ramp_start_t_s=np.unique(log("command_ramp").data()[0]),
-    )
+        initial_position_rad=np.array(handles.ground.initial_position_rad, dtype=float))
 
 
 def _collision_stops(record: SimulationRecord) -> dict | None:
@@ -326,12 +410,81 @@ def response_errors(record: SimulationRecord) -> ResponseErrors:
     measured = sample_at(record.tracker_t_s, record.tool_position_m, response_times[inside])
     e_response = tracking_errors(tool_positions(scenario, record.q_sent[inside]), measured)
     both = inside & (sample_times >= 0.0)
-    operator = tool_positions(
-        scenario, sample_at(record.target_t_s, record.q_target, sample_times[both]))
-    e_chain = tracking_errors(
-        operator, sample_at(record.tracker_t_s, record.tool_position_m, response_times[both]))
+    if record.target_t_s is None:    # the onboard side: no operator
+        both[:] = False
+        e_chain = np.zeros(0)
+    else:
+        operator = tool_positions(
+            scenario, sample_at(record.target_t_s, record.q_target, sample_times[both]))
+        e_chain = tracking_errors(operator, sample_at(record.tracker_t_s,
+                                                      record.tool_position_m,
+                                                      response_times[both]))
     return ResponseErrors(response_t_s=response_times[inside], response_m=e_response,
                           chain_t_s=response_times[both], chain_m=e_chain, ramp_s=ramp)
+
+
+def guard_metrics(record: SimulationRecord) -> dict | None:
+    """What the onboard link guard did to the commands of a deployed chain (None in the
+    paper's chain), JSON-ready:
+
+    * ``commands``, ``limited``: commands issued, and how many of those that followed a
+      packet differ from it (the limiter cut them to keep the limits);
+    * ``largest_cut_rad``: per joint, the largest |command − the packet it followed| over the
+      commands issued while tracking or re-joining the stream, rad;
+    * ``stream_distance_rad``: the largest distance (max over joints) of the robot's command
+      from the newest accepted packet after any poll, rad;
+    * ``time_in_mode_s``: how long the guard was in each mode;
+    * ``received``: the FD acceleration and jerk of the command sequence the robot received
+      (the guard's commands, after the robot's rest at its start pose), against the limits
+      (:func:`~telesmooth.smoothing.metrics.limit_statistics`).
+    """
+    guard = record.guard
+    if guard is None:
+        return None
+    from telesmooth.smoothing.metrics import finite_differences, limit_statistics
+    from telesmooth.systems.link_guard import GUARD_MODES, MODE_RESUMING, MODE_TRACK
+
+    scenario = record.scenario
+    n, names = record.num_joints, record.joint_names
+    a_max = as_per_joint("max_acceleration_rad_per_s2",
+                         scenario.smoother.max_acceleration_rad_per_s2, n, names, allow_inf=True)
+    j_max = as_per_joint("max_jerk_rad_per_s3", scenario.smoother.max_jerk_rad_per_s3, n,
+                         names, allow_inf=True)
+    modes = guard.mode[np.searchsorted(guard.poll_t_s, guard.command_t_s)]
+    following = (modes == MODE_TRACK) | (modes == MODE_RESUMING)
+    cut = np.abs(guard.q_commanded - guard.q_followed)[following]
+    rest = np.tile(record.initial_position_rad, (3, 1))
+    sequence = np.vstack([rest, guard.q_commanded])
+    period = scenario.uplink.period_s
+    return {
+        "commands": guard.num_commands,
+        "limited": guard.limited_count,
+        "accepted_packets": guard.accepted_count,
+        "largest_cut_rad": (cut.max(axis=0) if cut.size else np.zeros(n)).tolist(),
+        "stream_distance_rad": float(guard.stream_distance_rad.max(initial=0.0)),
+        "time_in_mode_s": {name: float(np.count_nonzero(guard.mode == k) * guard.poll_period_s)
+                           for k, name in enumerate(GUARD_MODES)},
+        "received": {
+            "fd_acceleration": limit_statistics(finite_differences(sequence, period, 2)[1:],
+                                                a_max),
+            "fd_jerk": limit_statistics(finite_differences(sequence, period, 3), j_max),
+        },
+    }
+
+
+def received_response_errors(record: SimulationRecord) -> tuple[np.ndarray, np.ndarray] | None:
+    """In a deployed chain, the robot's response to each command it received (the guard's):
+    (instants, ‖FK(q_commanded,k) − x_tracker(instant)‖), read ``ramp_s`` after the robot
+    began to move towards it (:func:`response_instants`); None in the paper's chain."""
+    guard = record.guard
+    if guard is None:
+        return None
+    ramp = response_delay_s(record.scenario)
+    instants = response_instants(guard.command_t_s, record.ramp_start_t_s, ramp)
+    inside = instants <= record.tracker_t_s[-1]
+    measured = sample_at(record.tracker_t_s, record.tool_position_m, instants[inside])
+    return instants[inside], tracking_errors(
+        tool_positions(record.scenario, guard.q_commanded[inside]), measured)
 
 
 def run_metrics(record: SimulationRecord) -> dict:
@@ -368,9 +521,12 @@ def run_metrics(record: SimulationRecord) -> dict:
         forward_kinematics=fk, joint_names=names)
     response = response_errors(record)
     e_response, e_chain, ramp = response.response_m, response.chain_m, response.ramp_s
+    received = received_response_errors(record)
     deflection = record.q_link - record.q_motor
     return {
-        "scenario": {"arm": scenario.arm, "haptic_source": scenario.haptic.source,
+        "scenario": {"arm": scenario.arm, "chain": scenario.chain,
+                     "chain_text": describe_chain(scenario),
+                     "haptic_source": scenario.haptic.source,
                      "operator": describe_operator(scenario),
                      "method": scenario.smoother.method,
                      "on_collision": scenario.fifo.on_collision},
@@ -387,8 +543,12 @@ def run_metrics(record: SimulationRecord) -> dict:
             "response_error_m": {"mean": float(np.mean(e_response)),
                                  "max": float(np.max(e_response))},
             "chain_error_m": {"mean": float(np.mean(e_chain)), "max": float(np.max(e_chain))},
+            "received_response_error_m": (
+                None if received is None or received[1].size == 0 else
+                {"mean": float(np.mean(received[1])), "max": float(np.max(received[1]))}),
             "ramp_s": ramp,
         },
+        "guard": guard_metrics(record),
         "link_deflection_rad": {"max_abs": np.abs(deflection).max(axis=0).tolist()},
         "plant": plant_summary(scenario, record.initial_position_rad),
     }

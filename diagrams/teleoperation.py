@@ -57,6 +57,7 @@ from telesmooth.systems.haptic_source import HapticSource, HapticSourceConfig
 from telesmooth.systems.inverse_kinematics import InverseKinematicsSystem
 from telesmooth.systems.joint_command_receiver import JointCommandReceiver
 from telesmooth.systems.joint_command_sender import JointCommandSender
+from telesmooth.systems.joint_status_decoder import JointStatusDecoder
 from telesmooth.systems.joint_status_sender import JointStatusSender
 from telesmooth.systems.lcm_safe_subscriber import LcmSafeSubscriber
 from telesmooth.systems.link_channel import LinkChannel
@@ -73,6 +74,7 @@ __all__ = [
     "OnboardHandles",
     "TeleoperationHandles",
     "AddGroundStation",
+    "AddDeployedLink",
     "AddJointCommandSender",
     "AddOnboardCommandPath",
     "AddOnboardRobot",
@@ -372,6 +374,8 @@ def add_link_loggers(builder, receiver: JointCommandReceiver, guard: LinkGuard,
                                               period_s),
         "guard_stream_distance": LogVectorOutput(guard.get_stream_distance_output_port(),
                                                  builder, period_s),
+        "guard_limited_count": LogVectorOutput(guard.get_limited_count_output_port(),
+                                               builder, period_s),
     }
 
 
@@ -444,11 +448,11 @@ def add_onboard_loggers(builder, robot: FlexibleJointArm, period_s: float) -> di
 def MakeTeleoperationDiagram(scenario: Scenario, *, meshcat=None) -> TeleoperationHandles:
     """The whole chain in one process.
 
-    By default the uplink's held command drives the plant directly. With ``scenario.link``
-    active (``simulate`` or any fault) each packet goes as between the two processes: formed
-    by the ``JointCommandSender``, carried by a ``LinkChannel`` (the faults), examined by the
-    ``JointCommandReceiver`` and passed through the ``LinkGuard`` to the robot (no
-    authentication in process: nobody else can reach the link).
+    ``scenario.chain == "deployed"`` (the default): each packet goes as between the two
+    processes: formed by the ``JointCommandSender``, carried by a ``LinkChannel`` (a perfect
+    link, or ``scenario.link.faults``), examined by the ``JointCommandReceiver`` and passed
+    through the ``LinkGuard`` to the robot (no authentication in process: nobody else can
+    reach the link). ``"paper"``: the uplink's held command drives the plant directly.
 
     ``meshcat``: optional ``pydrake.geometry.Meshcat``; the robot (and its workspace) are then
     drawn by :func:`telesmooth.diagrams.visualization.AddRobotVisualizer`.
@@ -456,24 +460,16 @@ def MakeTeleoperationDiagram(scenario: Scenario, *, meshcat=None) -> Teleoperati
     builder = DiagramBuilder()
     ground = AddGroundStation(builder, scenario)
     q0 = ground.initial_position_rad
-    # Without the link the uplink drives the robot: its command changes only at the ticks.
+    deployed = scenario.chain == "deployed"
+    # In the paper's chain the uplink drives the robot: its command changes only at the
+    # ticks. Deployed, the robot is built as the onboard process builds it.
     robot = AddOnboardRobot(
         builder, scenario, initial_position_rad=q0,
-        command_period_s=None if scenario.link.active else scenario.uplink.period_s)
+        command_period_s=None if deployed else scenario.uplink.period_s)
     receiver = guard = link = None
     logs = {}
-    if scenario.link.active:
-        sender = AddJointCommandSender(builder, ground, scenario)
-        link = builder.AddNamedSystem("link", LinkChannel(
-            scenario.link.faults, lcm_type=lcmt_teleop_joint_command))
-        builder.Connect(sender.get_lcm_message_output_port(),
-                        link.get_lcm_message_input_port())
-        # One process: the guard shares the pre-simulator's collision model (same arm and
-        # workspace) instead of building a second plant.
-        receiver, guard = AddOnboardCommandPath(
-            builder, scenario, packets=link.get_packets_output_port(), initial_position_rad=q0,
-            collision_model=ground.collision_checker.collision_model)
-        builder.Connect(guard.get_q_commanded_output_port(), robot.GetInputPort("q_commanded"))
+    if deployed:
+        receiver, guard, link = AddDeployedLink(builder, ground, scenario, robot)
         logs.update(add_link_loggers(builder, receiver, guard,
                                      scenario.command_receiver.poll_period_s))
         logs["link_counts"] = LogVectorOutput(link.get_link_counts_output_port(), builder,
@@ -491,6 +487,30 @@ def MakeTeleoperationDiagram(scenario: Scenario, *, meshcat=None) -> Teleoperati
         diagram=diagram, ground=ground,
         onboard=OnboardHandles(arm=robot, receiver=receiver, guard=guard, link=link),
         logs=logs, scenario=scenario)
+
+
+def AddDeployedLink(builder: DiagramBuilder, ground: GroundHandles, scenario: Scenario,
+                    robot: FlexibleJointArm):
+    """The deployed chain between the ground's uplink and ``robot`` in one process: sender →
+    ``LinkChannel`` (``scenario.link.faults``) → receiver → link guard → robot; returns
+    (receiver, guard, link).
+
+    The channel polls at the receiver's period, just before each of its polls (see
+    :class:`~telesmooth.systems.link_channel.LinkChannel`), and the guard shares the
+    pre-simulator's collision model (same arm and workspace) instead of building a second
+    plant."""
+    sender = AddJointCommandSender(builder, ground, scenario)
+    poll = scenario.command_receiver.poll_period_s
+    link = builder.AddNamedSystem("link", LinkChannel(
+        scenario.link.faults, lcm_type=lcmt_teleop_joint_command, poll_period_s=poll,
+        poll_offset_s=0.9 * poll))
+    builder.Connect(sender.get_lcm_message_output_port(), link.get_lcm_message_input_port())
+    receiver, guard = AddOnboardCommandPath(
+        builder, scenario, packets=link.get_packets_output_port(),
+        initial_position_rad=ground.initial_position_rad,
+        collision_model=ground.collision_checker.collision_model)
+    builder.Connect(guard.get_q_commanded_output_port(), robot.GetInputPort("q_commanded"))
+    return receiver, guard, link
 
 
 def MakeGroundDiagram(scenario: Scenario, *, lcm: DrakeLcm, session_id: int = 0,
@@ -550,6 +570,14 @@ def MakeGroundDiagram(scenario: Scenario, *, lcm: DrakeLcm, session_id: int = 0,
     for name in ("link_status", "telemetry_age", "unacknowledged", "onboard_guard_mode",
                  "onboard_counts", "stream_distance"):
         logs[name] = LogVectorOutput(monitor.GetOutputPort(name), builder, 0.05)
+    # What the robot reported, for the ground's report (one row per telemetry period; a
+    # message is repeated until the next arrives, the report keeps one row per seq).
+    decoder = builder.AddNamedSystem("joint_status_decoder", JointStatusDecoder(
+        num_joints=len(ground.joint_names)))
+    builder.Connect(telemetry.get_lcm_message_output_port(),
+                    decoder.get_lcm_message_input_port())
+    logs["telemetry"] = LogVectorOutput(decoder.get_telemetry_output_port(), builder,
+                                        scenario.onboard.tracker.period_s)
     diagram = builder.Build()
     diagram.set_name("ground")
     return TeleoperationHandles(diagram=diagram, ground=ground, onboard=None, logs=logs,

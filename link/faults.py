@@ -132,6 +132,26 @@ class LinkFaultConfig:
                 or (self.reorder_probability > 0.0 and self.reorder_delay_s > 0.0)
                 or bool(self.outages))
 
+    def describe(self) -> str:
+        """The faults in words, for a report (``"a perfect link"`` when none)."""
+        parts = []
+        if self.delay_s > 0.0:
+            parts.append(f"delay {self.delay_s:g} s")
+        if self.jitter_s > 0.0:
+            parts.append(f"jitter up to {self.jitter_s:g} s")
+        if self.loss_probability > 0.0:
+            parts.append(f"loss {100 * self.loss_probability:g} %")
+        if self.duplicate_probability > 0.0:
+            parts.append(f"duplicates {100 * self.duplicate_probability:g} %")
+        if self.reorder_probability > 0.0 and self.reorder_delay_s > 0.0:
+            parts.append(f"{100 * self.reorder_probability:g} % held back "
+                         f"{self.reorder_delay_s:g} s")
+        for start, end in self.outages:
+            parts.append(f"outage {start:g}–{end:g} s")
+        if not parts:
+            return "a perfect link"
+        return ", ".join(parts) + f"; seed {self.seed}"
+
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any] | None) -> LinkFaultConfig:
         """Builds a config from a YAML/JSON-like mapping (``None`` = the defaults).

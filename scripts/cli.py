@@ -398,6 +398,11 @@ def _load_scenario(args):
     if getattr(args, "on_collision", None) is not None:
         scenario = dataclasses.replace(scenario, fifo=dataclasses.replace(
             scenario.fifo, on_collision=args.on_collision))
+    if getattr(args, "chain", None) is not None:
+        try:
+            scenario = dataclasses.replace(scenario, chain=args.chain)
+        except ValueError as error:    # e.g. link faults with the paper's chain
+            raise ValueError(f"--chain {args.chain}: {error}") from None
     return scenario
 
 
@@ -415,6 +420,11 @@ def _add_simulate_parser(subparsers) -> None:
                    help="simulated time in s (default: the recording + settle time)")
     p.add_argument("--meshcat", action="store_true",
                    help="also save a self-contained Meshcat replay, run.html")
+    p.add_argument("--chain", choices=("deployed", "paper"), default=None,
+                   help="'deployed' (the scenario's default): every packet through the "
+                        "onboard receiver and link guard, as `telesmooth onboard` runs them; "
+                        "'paper': the uplink drives the robot directly (the paper's chain, "
+                        "no guard)")
     p.set_defaults(handler=run_simulate)
 
 
@@ -769,11 +779,15 @@ def run_process(args) -> int:
     with _scenario_outputs(args, scenario, ("--uplink-key", args.uplink_key)) as outputs:
         out = None if args.out is None else outputs.folder("--out", args.out)
         if args.process == "ground":
-            return run_ground(scenario, lcm_url=url, duration_s=args.duration,
-                              realtime=args.realtime, out=out, uplink_key=key,
-                              resume_wait_s=args.resume_wait)
-        return run_onboard(scenario, lcm_url=url, duration_s=args.duration,
-                           realtime=args.realtime, out=out, uplink_key=key)
+            status = run_ground(scenario, lcm_url=url, duration_s=args.duration,
+                                realtime=args.realtime, out=out, uplink_key=key,
+                                resume_wait_s=args.resume_wait)
+        else:
+            status = run_onboard(scenario, lcm_url=url, duration_s=args.duration,
+                                 realtime=args.realtime, out=out, uplink_key=key)
+    if args.out is not None:
+        print(f"report: {args.out / 'report.md'}")
+    return status
 
 
 def package_version() -> str:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import math
 import signal
 import sys
 import time
@@ -19,7 +20,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["RobotTelemetry", "onboard_report", "robot_telemetry", "run_ground", "run_onboard"]
+__all__ = ["RobotTelemetry", "ground_start_time", "onboard_report", "robot_telemetry",
+           "run_ground", "run_onboard"]
 
 
 def _log(message: str) -> None:
@@ -32,14 +34,22 @@ def _check_url(url: str) -> str:
     return url
 
 
-def _advance(simulator, duration_s: float, realtime: float, name: str, status=None) -> float:
+def _advance(simulator, duration_s: float, realtime: float, name: str, status=None,
+             start_at=None) -> float:
     """Runs to ``duration_s`` in 0.25 s slices, printing progress (and ``status()``, if
     given) every second. SIGINT or SIGTERM ends the run early but cleanly: the slice in
     progress finishes and the caller writes its logs as after a full run (up to that time).
-    A second signal interrupts at once (KeyboardInterrupt, no logs)."""
+    A second signal interrupts at once (KeyboardInterrupt, no logs). ``start_at(now)``:
+    the ``time.monotonic()`` instant at which to start the clock (t = 0), waited for; None
+    starts at once."""
     if realtime > 0:
         simulator.set_target_realtime_rate(realtime)
     simulator.Initialize()
+    if start_at is not None:
+        delay = start_at(time.monotonic()) - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        simulator.ResetStatistics()   # the real-time pacing counts t = 0 from now
     stopped_by = []
 
     def on_signal(signum, _frame):
@@ -83,6 +93,8 @@ class RobotTelemetry(NamedTuple):
     pose: np.ndarray        # the robot's commanded pose, rad
     onboard_epoch: int      # the robot's epoch (its commands must carry it)
     last_session: int       # the session of the last command it accepted (0: none)
+    clock_offset_s: float = math.nan   # time.monotonic() − the robot's clock (its utime):
+    # the smallest difference over the messages read, i.e. the link's latency at its least
 
 
 def robot_commanded_pose(lcm_url: str, scenario, wait_s: float):
@@ -102,8 +114,10 @@ def robot_telemetry(lcm_url: str, scenario, wait_s: float) -> RobotTelemetry | N
 
     arm = scenario.arm_description
     found = []
+    offsets = []
 
     def handle(_channel, data):
+        arrival = time.monotonic()
         try:
             msg = decode_exact(lcmt_onboard_joint_status, data)
         except Exception:  # noqa: BLE001 - garbage on the channel is not telemetry
@@ -111,6 +125,7 @@ def robot_telemetry(lcm_url: str, scenario, wait_s: float) -> RobotTelemetry | N
         q = np.asarray(msg.joint_position_commanded, dtype=float)
         if q.shape == (arm.num_joints,) and np.all(np.isfinite(q)) and np.all(
                 q >= arm.joint_lower_rad) and np.all(q <= arm.joint_upper_rad):
+            offsets.append(arrival - msg.utime * 1e-6)
             found.append(RobotTelemetry(q, int(msg.onboard_epoch),
                                         int(msg.last_command_session_id)))
 
@@ -120,9 +135,40 @@ def robot_telemetry(lcm_url: str, scenario, wait_s: float) -> RobotTelemetry | N
     try:
         while not found and time.monotonic() < deadline:
             bus.handle_timeout(max(1, int(1000 * min(0.1, deadline - time.monotonic()))))
+        # A few more messages (0.3 s) for the robot's clock: the least latency among them.
+        settle = time.monotonic() + PHASE_SAMPLE_S
+        while found and time.monotonic() < settle:
+            bus.handle_timeout(max(1, int(1000 * min(0.05, settle - time.monotonic()))))
     finally:
         bus.unsubscribe(subscription)
-    return found[-1] if found else None
+    if not found:
+        return None
+    return found[-1]._replace(clock_offset_s=min(offsets))
+
+
+PHASE_SAMPLE_S = 0.3
+"""How long the ground reads the robot's telemetry for its clock before it starts, s."""
+
+
+def ground_start_time(telemetry: RobotTelemetry, scenario, *, now: float) -> float:
+    """When (``time.monotonic()``) the ground should start its clock so that each packet,
+    published ``publish_offset_s`` after a tick, reaches the robot half a receiver poll
+    before the robot's next poll: every packet is then taken by the same poll relative to
+    its tick, whatever a few milliseconds of latency jitter do (started at an arbitrary
+    instant, a packet that arrives near a poll is taken by one poll or the next, which moves
+    the robot's ramp by a poll period: measured, up to 1.5 mm on Defaults).
+
+    The robot's polls are at whole multiples of its ``poll_period_s`` on its clock, and its
+    telemetry is published ``publish_offset_s`` after a poll; ``telemetry.clock_offset_s``
+    maps its clock onto ``time.monotonic()``. Returns the first such instant at least one
+    poll after ``now``; ``now`` itself without a clock offset."""
+    if not math.isfinite(telemetry.clock_offset_s):
+        return now
+    poll = scenario.command_receiver.poll_period_s
+    # A poll of the robot, on this clock: its telemetry's utime − the publish offset.
+    phase = (telemetry.clock_offset_s + poll / 2.0 - scenario.publish_offset_s) % poll
+    start = now + poll - ((now - phase) % poll)
+    return start if start >= now + poll else start + poll
 
 
 def _write_rows(path: Path, header, rows) -> None:
@@ -156,6 +202,7 @@ def run_ground(scenario, *, lcm_url: str, duration_s: float | None, realtime: fl
     _check_url(lcm_url)
     nonce = new_ground_nonce()
     epoch, session_id = 0, 0
+    telemetry = None
     if resume_wait_s > 0:
         telemetry = robot_telemetry(lcm_url, scenario, resume_wait_s)
         if telemetry is None:
@@ -201,14 +248,27 @@ def run_ground(scenario, *, lcm_url: str, duration_s: float | None, realtime: fl
                 f"invalid/auth/session {counts[1]}/{counts[2]}/{counts[6]}, dropped "
                 f"duplicate/stale {counts[3]}/{counts[4]}, undecodable {counts[5]})")
 
-    _advance(simulator, duration_s, realtime, "ground", status=link_text)
+    start_at = None
+    if telemetry is not None and realtime == 1.0:
+        # Packets reach the robot half a poll before its next poll (ground_start_time; the
+        # robot's clock maps onto this one only when both run at the wall clock's rate).
+        def start_at(now):
+            return ground_start_time(telemetry, scenario, now=now)
+    wall = _advance(simulator, duration_s, realtime, "ground", status=link_text,
+                    start_at=start_at)
     if out is not None:
+        from telesmooth.scripts.process_report import write_ground_report
+
         context = simulator.get_context()
         seq, times, states = uplink_packets(handles, context)
         n = len(handles.ground.joint_names)
         rows = [[k, t, *state[:n]] for k, t, state in zip(seq, times, states)]
         _write_rows(Path(out) / "ground_commands.csv",
                     ["seq", "send_t"] + [f"q_{j}" for j in handles.ground.joint_names], rows)
+        write_ground_report(
+            Path(out), handles, context, wall_time_s=wall,
+            extra={"lcm_url": lcm_url,
+                   "signing": "signed" if uplink_key is not None else "UNSIGNED"})
     return 0
 
 
@@ -262,7 +322,7 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
                 + ("" if lost != lost else f", lost before decoding {int(lost)}")
                 + (f"; last rejection: {last}" if last else ""))
 
-    _advance(simulator, duration_s, realtime, "onboard", status=link_text)
+    wall = _advance(simulator, duration_s, realtime, "onboard", status=link_text)
     if out is not None:
         context = simulator.get_context()
         names = handles.onboard.arm.joint_names
@@ -289,6 +349,12 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
                     ["t"] + [f"q_link_{j}" for j in names] + ["tool_x", "tool_y", "tool_z"],
                     ([t, *q, *p] for t, q, p in zip(tracker.t_s, tracker.q_link,
                                                     tracker.tool_position_m)))
+        from telesmooth.scripts.process_report import write_onboard_report
+
+        write_onboard_report(
+            Path(out), handles, context, wall_time_s=wall,
+            extra={"authentication": scenario.command_receiver.authentication,
+                   "onboard_epoch": epoch, "packets": counts})
     return 0
 
 

@@ -1,8 +1,8 @@
 """The ground-to-onboard link inside one simulation: delay, jitter, loss, duplication, reordering.
 
-In-process runs normally wire the uplink's held command straight into the robot. With
-``link.simulate`` the packet goes the way it goes between the two processes instead: the
-ground's ``JointCommandSender`` forms (and signs) the ``lcmt_teleop_joint_command``, this
+In the deployed chain (``chain: deployed``, the default) every uplink packet goes the way it
+goes between the two processes: the ground's ``JointCommandSender`` forms (and signs) the
+``lcmt_teleop_joint_command``, this
 system encodes it and delivers the bytes according to a seeded
 :class:`~telesmooth.link.faults.LinkFaultModel`, and the onboard ``JointCommandReceiver``
 examines every delivered packet. The fate of packet k depends only on (seed, k)
@@ -37,6 +37,12 @@ class _LinkState:
     delivered: tuple = ()             # the last RECENT_PACKETS deliveries, (number, bytes)
     delivered_count: int = 0
 
+    def __deepcopy__(self, memo):
+        # Immutable (the queue is copied before any change, _poll), so a Context's copy may
+        # share it: Drake clones abstract state values at every update, and a deep copy of
+        # the packets in flight made the deployed chain's link cost 60 % of a run.
+        return self
+
 
 class LinkChannel(LeafSystem):
     r"""A simulated unreliable link for one LCM message stream.
@@ -60,24 +66,31 @@ class LinkChannel(LeafSystem):
     - ``link_counts``: (5,) packets sent, deliveries made, packets lost, duplicated and held
       back (:data:`LINK_COUNTS`).
 
-    Every ``poll_period_s``: take a new packet from the input (encode it and put it on a
-    :class:`~telesmooth.link.faults.LinkQueue`, whose model decides its delivery times from
-    (seed, packet index)), then deliver every copy whose time has come, in delivery-time
-    order. Delivery times are therefore quantised to the poll period.
+    Every ``poll_period_s`` (from ``poll_offset_s``): take a new packet from the input
+    (encode it and put it on a :class:`~telesmooth.link.faults.LinkQueue`, whose model
+    decides its delivery times from (seed, packet index)), then deliver every copy whose time
+    has come, in delivery-time order. Delivery times are therefore quantised to the poll
+    grid. A receiver that polls every ``poll_period_s`` from offset 0 sees what this channel
+    delivers at its next poll; polling at the receiver's period just before each of its
+    polls (offset 0.9 period) hands it every packet as early as a faster channel would,
+    with one event per receiver poll (the deployed chain, MakeTeleoperationDiagram).
     """
 
     def __init__(self, config: LinkFaultConfig = LinkFaultConfig(), *, lcm_type,
-                 poll_period_s: float = 0.002):
+                 poll_period_s: float = 0.002, poll_offset_s: float = 0.0):
         super().__init__()
         if not isinstance(config, LinkFaultConfig):
             raise ValueError(f"config = {config!r} must be a LinkFaultConfig")
         check_period("LinkChannel.poll_period_s", poll_period_s)
+        if not 0.0 <= poll_offset_s < poll_period_s:
+            raise ValueError(f"LinkChannel.poll_offset_s = {poll_offset_s!r} must be >= 0 and "
+                             f"below poll_period_s = {poll_period_s!r}")
         self._config = config
         self._message_input = self.DeclareAbstractInputPort(
             "lcm_message", AbstractValue.Make(lcm_type()))
         self._state = self.DeclareAbstractState(AbstractValue.Make(
             _LinkState(queue=LinkQueue(config))))
-        self.DeclarePeriodicUnrestrictedUpdateEvent(poll_period_s, 0.0, self._poll)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(poll_period_s, poll_offset_s, self._poll)
         self._packets_output = self.DeclareAbstractOutputPort(
             "packets", lambda: AbstractValue.Make(()),
             lambda c, o: o.set_value(self._link(c).delivered), {self.all_state_ticket()})

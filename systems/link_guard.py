@@ -71,6 +71,7 @@ class LinkGuard(LeafSystem):
         - stop_outcome
         - command_count
         - stream_distance
+        - limited_count
 
     Ports (J = number of joints):
 
@@ -93,6 +94,8 @@ class LinkGuard(LeafSystem):
       increases is the command *sequence* whose FD values the limits are about.
     - ``stream_distance``: (1,), max over joints of |q_commanded − the newest accepted
       packet|, rad (0 before the first packet).
+    - ``limited_count``: (1,), the commands that followed a packet but differ from it: the
+      limiter cut them to keep the limits.
 
     All outputs read the state (no direct feedthrough): at a poll they show the state *before*
     that poll's update (Drake's x⁻). One periodic discrete update every ``poll_period_s``
@@ -154,6 +157,8 @@ class LinkGuard(LeafSystem):
             "command_count", 1, self._codec.field_slice("command_count"))
         self._stream_distance_output = state_output(
             "stream_distance", 1, self._codec.field_slice("stream_distance_rad"))
+        self._limited_count_output = state_output(
+            "limited_count", 1, self._codec.field_slice("limited_count"))
 
     # -- accessors ------------------------------------------------------------------------
 
@@ -228,6 +233,9 @@ class LinkGuard(LeafSystem):
 
     def get_stream_distance_output_port(self):
         return self._stream_distance_output
+
+    def get_limited_count_output_port(self):
+        return self._limited_count_output
 
     # -- the poll -------------------------------------------------------------------------
 

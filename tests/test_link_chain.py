@@ -24,7 +24,7 @@ from telesmooth.systems.link_guard import MODE_TRACK, fd_limits_ratio
 
 BASE = ("{haptic: {source: synthetic, synthetic: {duration_s: 5.0, hold_start_s: 0.5, "
         "hold_end_s: 0.5}}, settle_s: 2.0, smoother: {method: online-hard}, "
-        "link: {simulate: true, faults: %s}}")
+        "link: {faults: %s}}")
 
 # name → (faults, order kept: the whole command sequence must then be within the limits)
 CASES = {
@@ -144,9 +144,9 @@ def test_the_guard_keeps_the_limits(case):
 
 
 def test_without_faults_the_robot_gets_exactly_the_direct_chain():
-    direct = load_scenario(scenario_text=(BASE % "{}").replace("simulate: true",
-                                                               "simulate: false"))
-    assert not direct.link.active
+    deployed = load_scenario(scenario_text=BASE % "{}")
+    assert deployed.chain == "deployed"       # the default
+    direct = load_scenario(scenario_text=(BASE % "{}")[:-1] + ", chain: paper}")
     _, handles, context, logs = _run("{}")
     seq, _, states = uplink_packets(handles, context)
     rows = _changes(logs["guard_command_count"].data()[0])[1:]

@@ -713,10 +713,10 @@ def test_ports_modes_and_initial_outputs():
     outputs = [dut.get_output_port(i).get_name() for i in range(dut.num_output_ports())]
     assert inputs == ["q_accepted", "accepted_count", "command_seq", "command_session"]
     assert outputs == ["q_commanded", "guard_mode", "braking_distance", "stop_outcome",
-                       "command_count", "stream_distance"]
-    assert [dut.get_output_port(i).size() for i in range(6)] == [2, 1, 2, 1, 1, 1]
+                       "command_count", "stream_distance", "limited_count"]
+    assert [dut.get_output_port(i).size() for i in range(7)] == [2, 1, 2, 1, 1, 1, 1]
     for i in range(4):
-        for j in range(6):
+        for j in range(7):
             assert not dut.HasDirectFeedthrough(i, j)
     assert dut.modes == GUARD_MODES == ("track", "stopping", "held", "resuming")
     assert (MODE_TRACK, MODE_STOPPING, MODE_HELD, MODE_RESUMING) == (0, 1, 2, 3)
@@ -728,6 +728,7 @@ def test_ports_modes_and_initial_outputs():
     assert dut.get_stop_outcome_output_port().Eval(context)[0] == 0
     assert dut.get_command_count_output_port().Eval(context)[0] == 0
     assert dut.get_stream_distance_output_port().Eval(context)[0] == 0.0
+    assert dut.get_limited_count_output_port().Eval(context)[0] == 0
 
 
 def forced_poll(dut, context, poll, count, q):
