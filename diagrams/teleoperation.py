@@ -76,6 +76,7 @@ __all__ = [
     "AddGroundStation",
     "AddDeployedLink",
     "AddJointCommandSender",
+    "AddJointStatusSender",
     "AddOnboardCommandPath",
     "AddOnboardRobot",
     "AddOperatorTargets",
@@ -149,16 +150,22 @@ def _period_mean_config(scenario: Scenario) -> PeriodMeanConfig:
 
 
 def AddOperatorTargets(builder: DiagramBuilder, scenario: Scenario, *, recording,
-                       initial_position_rad, lcm: DrakeLcm | None = None) -> OperatorTargets:
+                       initial_position_rad, lcm: DrakeLcm | None = None,
+                       haptic=None) -> OperatorTargets:
     """Adds the haptic source (or live LCM receiver), the inverse kinematics and, with
     ``scenario.period_mean``, the period mean; ``q_sampled`` is the port the FIFO samples.
+    ``haptic``: a system already in ``builder`` that is the operator's hand (its
+    ``pose_desired`` and ``enable`` outputs; e.g. the browser console of ``teleop``)
+    instead of the scenario's source.
 
     Shared by the ground station and the offline planner, so both see the same targets.
     """
     arm = scenario.arm_description
     q0 = initial_position_rad
     # The operator's hand: recorded, synthetic, or a live device over LCM.
-    if recording is not None:
+    if haptic is not None:
+        pass
+    elif recording is not None:
         haptic = builder.AddNamedSystem("haptic_source", HapticSource(
             recording, HapticSourceConfig(period_s=scenario.haptic.period_s)))
     else:
@@ -181,41 +188,45 @@ def AddOperatorTargets(builder: DiagramBuilder, scenario: Scenario, *, recording
     # Inverse kinematics, at the haptic rate.
     ik = builder.AddNamedSystem("inverse_kinematics", InverseKinematicsSystem(
         scenario.inverse_kinematics, arm=arm, initial_position_rad=q0))
-    builder.Connect(haptic.get_pose_desired_output_port(), ik.get_input_port(0))
-    builder.Connect(haptic.get_enable_output_port(), ik.get_input_port(1))
+    builder.Connect(haptic.get_pose_desired_output_port(), ik.get_pose_desired_input_port())
+    builder.Connect(haptic.get_enable_output_port(), ik.get_enable_input_port())
 
     period_mean = None
-    q_sampled = ik.get_output_port(0)
+    q_sampled = ik.get_q_target_output_port()
     if scenario.period_mean:
         period_mean = builder.AddNamedSystem("period_mean", PeriodMean(
             _period_mean_config(scenario), num_joints=arm.num_joints, initial_position_rad=q0))
-        builder.Connect(ik.get_output_port(0), period_mean.get_q_target_input_port())
+        builder.Connect(ik.get_q_target_output_port(), period_mean.get_q_target_input_port())
         q_sampled = period_mean.get_q_mean_output_port()
     return OperatorTargets(haptic=haptic, inverse_kinematics=ik, period_mean=period_mean,
                            q_sampled=q_sampled)
 
 
 def AddGroundStation(builder: DiagramBuilder, scenario: Scenario, *,
-                     lcm: DrakeLcm | None = None) -> GroundHandles:
+                     lcm: DrakeLcm | None = None, haptic=None) -> GroundHandles:
     """Adds the ground station (haptic source … uplink) to ``builder``.
 
     The haptic source is the scenario's recording, or an LCM subscription to
-    TELEOP_HAPTIC_COMMAND when ``scenario.haptic.source == "lcm"`` (needs ``lcm``).
+    TELEOP_HAPTIC_COMMAND when ``scenario.haptic.source == "lcm"`` (needs ``lcm``), or
+    ``haptic``, a system already in ``builder`` (:func:`AddOperatorTargets`). A live operator
+    (LCM or ``haptic``) can stop the robot (its ``stop_requested`` output drives the FIFO's
+    stop) and re-engages at the robot's commanded pose (the inverse kinematics' anchor is
+    the uplink's held command while the FIFO holds).
     """
     arm = scenario.arm_description
-    recording = make_haptic_recording(scenario)
+    recording = None if haptic is not None else make_haptic_recording(scenario)
     q0 = initial_position(scenario, recording)
     n = arm.num_joints
 
     # Stages 1-2: the operator's hand and the inverse kinematics (the task plan manager).
     operator = AddOperatorTargets(builder, scenario, recording=recording,
-                                  initial_position_rad=q0, lcm=lcm)
+                                  initial_position_rad=q0, lcm=lcm, haptic=haptic)
     haptic, ik = operator.haptic, operator.inverse_kinematics
 
     # Stage 3: the pre-simulator's collision check on the newest (undelayed) target.
     checker = builder.AddNamedSystem("collision_checker", CollisionChecker(
         scenario.collision_checker, arm=arm, workspace=scenario.workspace_or_default))
-    builder.Connect(ik.get_output_port(0), checker.get_input_port(0))
+    builder.Connect(ik.get_q_target_output_port(), checker.get_q_target_input_port())
 
     # Stage 4: the 0.75 s FIFO, sampling the latest target or the period mean.
     # With fifo.on_collision = "stop", the jerk-limited stop is planned with the smoother's
@@ -248,6 +259,13 @@ def AddGroundStation(builder: DiagramBuilder, scenario: Scenario, *,
                     uplink.get_state_smoothed_input_port())
     builder.Connect(uplink.get_q_sent_output_port(), fifo.get_q_sent_input_port())
     builder.Connect(fifo.get_holding_output_port(), uplink.get_holding_input_port())
+
+    # A live operator: the stop button, and re-engaging where the robot was held.
+    if recording is None:
+        builder.Connect(haptic.get_stop_requested_output_port(),
+                        fifo.get_stop_requested_input_port())
+        builder.Connect(uplink.get_q_sent_output_port(), ik.get_q_anchor_input_port())
+        builder.Connect(fifo.get_holding_output_port(), ik.get_anchor_input_port())
 
     return GroundHandles(
         haptic=haptic, inverse_kinematics=ik, collision_checker=checker,
@@ -385,7 +403,7 @@ def add_ground_loggers(builder, ground: GroundHandles, scenario: Scenario) -> di
     tick = scenario.uplink.period_s
     ik, checker, uplink = ground.inverse_kinematics, ground.collision_checker, ground.uplink
     return {
-        "q_target": LogVectorOutput(ik.get_output_port(0), builder, haptic_period),
+        "q_target": LogVectorOutput(ik.get_q_target_output_port(), builder, haptic_period),
         "ik_failed": LogVectorOutput(ik.GetOutputPort("ik_failed"), builder, haptic_period),
         "collision_detected": LogVectorOutput(checker.GetOutputPort("collision_detected"),
                                               builder, haptic_period),
@@ -469,7 +487,7 @@ def MakeTeleoperationDiagram(scenario: Scenario, *, meshcat=None) -> Teleoperati
     receiver = guard = link = None
     logs = {}
     if deployed:
-        receiver, guard, link = AddDeployedLink(builder, ground, scenario, robot)
+        _, receiver, guard, link = AddDeployedLink(builder, ground, scenario, robot)
         logs.update(add_link_loggers(builder, receiver, guard,
                                      scenario.command_receiver.poll_period_s))
         logs["link_counts"] = LogVectorOutput(link.get_link_counts_output_port(), builder,
@@ -493,7 +511,7 @@ def AddDeployedLink(builder: DiagramBuilder, ground: GroundHandles, scenario: Sc
                     robot: FlexibleJointArm):
     """The deployed chain between the ground's uplink and ``robot`` in one process: sender →
     ``LinkChannel`` (``scenario.link.faults``) → receiver → link guard → robot; returns
-    (receiver, guard, link).
+    (sender, receiver, guard, link).
 
     The channel polls at the receiver's period, just before each of its polls (see
     :class:`~telesmooth.systems.link_channel.LinkChannel`), and the guard shares the
@@ -510,7 +528,7 @@ def AddDeployedLink(builder: DiagramBuilder, ground: GroundHandles, scenario: Sc
         initial_position_rad=ground.initial_position_rad,
         collision_model=ground.collision_checker.collision_model)
     builder.Connect(guard.get_q_commanded_output_port(), robot.GetInputPort("q_commanded"))
-    return receiver, guard, link
+    return sender, receiver, guard, link
 
 
 def MakeGroundDiagram(scenario: Scenario, *, lcm: DrakeLcm, session_id: int = 0,
@@ -584,6 +602,31 @@ def MakeGroundDiagram(scenario: Scenario, *, lcm: DrakeLcm, session_id: int = 0,
                                 lcm=lcm, scenario=scenario)
 
 
+def AddJointStatusSender(builder: DiagramBuilder, robot: FlexibleJointArm,
+                         receiver: JointCommandReceiver, guard: LinkGuard, *,
+                         onboard_epoch: int = 0) -> JointStatusSender:
+    """Adds the robot's telemetry message (``lcmt_onboard_joint_status``) from the robot's
+    tracker, the receiver and the guard; publish it at the tracker's rate."""
+    status = builder.AddNamedSystem("joint_status_sender", JointStatusSender(
+        num_joints=robot.num_joints, period_s=robot.config.tracker.period_s,
+        onboard_epoch=onboard_epoch))
+    for robot_port, status_port in (
+            ("q_link", status.get_q_link_input_port()),
+            ("q_motor", status.get_q_motor_input_port()),
+            ("position_measured", status.get_position_measured_input_port()),
+            ("velocity_measured", status.get_velocity_measured_input_port()),
+            ("tracker_sample_time", status.get_sample_time_input_port())):
+        builder.Connect(robot.GetOutputPort(robot_port), status_port)
+    for name in ("last_command_seq", "last_command_session", "command_rejected",
+                 "command_timeout", "accepted_count", "rejection_counts"):
+        builder.Connect(receiver.GetOutputPort(name), status.GetInputPort(name))
+    builder.Connect(guard.get_q_commanded_output_port(), status.get_q_commanded_input_port())
+    builder.Connect(guard.get_guard_mode_output_port(), status.get_guard_mode_input_port())
+    builder.Connect(guard.get_stream_distance_output_port(),
+                    status.get_stream_distance_input_port())
+    return status
+
+
 def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm, initial_position_rad=None,
                        uplink_key: bytes | None = None, uplink_lcm=None,
                        onboard_epoch: int = 0) -> TeleoperationHandles:
@@ -603,7 +646,6 @@ def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm, initial_position_ra
     ``onboard_epoch``: this run's epoch (:func:`telesmooth.link.session.new_epoch`),
     announced in the telemetry; only commands that carry it are accepted.
     """
-    arm = scenario.arm_description
     if initial_position_rad is None:
         initial_position_rad = initial_position(scenario, make_haptic_recording(scenario))
     builder = DiagramBuilder()
@@ -623,19 +665,7 @@ def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm, initial_position_ra
     robot = AddOnboardRobot(builder, scenario, initial_position_rad=initial_position_rad)
     builder.Connect(guard.get_q_commanded_output_port(), robot.GetInputPort("q_commanded"))
     tracker_period = scenario.onboard.tracker.period_s
-    status = builder.AddNamedSystem("joint_status_sender", JointStatusSender(
-        num_joints=arm.num_joints, period_s=tracker_period, onboard_epoch=onboard_epoch))
-    builder.Connect(robot.GetOutputPort("q_link"), status.get_q_link_input_port())
-    builder.Connect(robot.GetOutputPort("q_motor"), status.get_q_motor_input_port())
-    builder.Connect(robot.GetOutputPort("position_measured"),
-                    status.get_position_measured_input_port())
-    for name in ("last_command_seq", "last_command_session", "command_rejected",
-                 "command_timeout", "accepted_count", "rejection_counts"):
-        builder.Connect(receiver.GetOutputPort(name), status.GetInputPort(name))
-    builder.Connect(guard.get_q_commanded_output_port(), status.get_q_commanded_input_port())
-    builder.Connect(guard.get_guard_mode_output_port(), status.get_guard_mode_input_port())
-    builder.Connect(guard.get_stream_distance_output_port(),
-                    status.get_stream_distance_input_port())
+    status = AddJointStatusSender(builder, robot, receiver, guard, onboard_epoch=onboard_epoch)
     status_publisher = builder.AddNamedSystem("joint_status_publisher",
         LcmPublisherSystem.Make(ONBOARD_JOINT_STATUS, lcmt_onboard_joint_status, lcm,
                                 publish_period=tracker_period,

@@ -320,15 +320,17 @@ def run_demo(args) -> int:
     return 0
 
 
-def _add_scenario_arguments(p) -> None:
+def _add_scenario_arguments(p, *, on_collision_default=None) -> None:
     p.add_argument("--scenario", type=Path, default=None,
                    help="scenario YAML file (default: the built-in diagrams/scenarios.yaml)")
     p.add_argument("--scenario-name", default=None, help="entry of the file (default Defaults)")
     p.add_argument("--scenario-text", default=None,
                    help="YAML overrides, e.g. \"{arm: space_arm, smoother: {method: bmfls}}\"")
-    p.add_argument("--on-collision", choices=("hold", "stop"), default=None,
-                   help="what a pre-simulator collision does (the scenario's fifo.on_collision, "
-                        "default hold): 'hold' re-sends the last command (the paper), 'stop' "
+    p.add_argument("--on-collision", choices=("hold", "stop"), default=on_collision_default,
+                   help="what a pre-simulator collision (and the operator's Stop) does ("
+                        + ("default stop" if on_collision_default == "stop" else
+                           "the scenario's fifo.on_collision, default hold")
+                        + "): 'hold' re-sends the last command (the paper), 'stop' "
                         "brakes within the acceleration and jerk limits")
 
 
@@ -440,6 +442,57 @@ def run_simulate(args) -> int:
                                          duration_s=args.duration, meshcat_html=args.meshcat)
     print(f"report: {args.out / report.name}")
     return 0
+
+
+def _add_teleop_parser(subparsers) -> None:
+    p = subparsers.add_parser(
+        "teleop",
+        help="drive the robot live from a browser (the whole chain in one process, at real "
+             "time, with the pre-simulator display and the predicted robot)",
+        description="The operator's seat: the whole deployed chain in one process against the "
+        "wall clock, driven from a browser page on Drake's Meshcat. Keys: Space = Enable "
+        "(the clutch: nothing moves until you engage it), Esc = Stop (brakes the robot "
+        "within the limits and holds it), A/D = -x/+x, S/W = -y/+y, J/L = the tool angle "
+        "(6-DOF arm: yaw; K/I = -z/+z, U/O = roll, Q/E = pitch); on-screen sliders and a "
+        "gamepad (left stick x/y, right stick angle and z; button A = Enable, B = Stop) do "
+        "the same. The page shows the planning position (solid), the position received "
+        "from the robot (wire frame), the predicted robot (green) and a status panel (open "
+        "the page's controls). With --out the session is written: the operator's hand as "
+        "a haptic recording, the logs, predicted.csv and report.md.",
+    )
+    _add_scenario_arguments(p, on_collision_default="stop")
+    p.add_argument("--port", type=int, default=None,
+                   help="port of the page (default: the first free from 7000)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="interface the page listens on (default 127.0.0.1: this machine "
+                        "only; anything else is reachable from other machines, and says so)")
+    p.add_argument("--duration", type=number, default=None,
+                   help="seconds to run (default: until Ctrl-C)")
+    p.add_argument("--realtime", type=number, default=1.0,
+                   help="target real-time rate (default 1)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="folder for the session: operator.npz/.csv (your hand, replayable "
+                        "with simulate), logs, predicted.csv, report.md")
+    p.set_defaults(handler=run_teleop_command)
+
+
+def run_teleop_command(args) -> int:
+    from telesmooth.scripts.teleop import run_teleop
+
+    scenario = _load_scenario(args)
+    if args.duration is not None:
+        _check_finite("--duration", args.duration)
+        _check_at_most("--duration", args.duration, MAX_PROCESS_RUN_S)
+    _check_finite("--realtime", args.realtime)
+    if args.port is not None and not 1 <= args.port <= 65535:
+        raise ValueError(f"--port = {args.port} must be a port number within 1 and 65535")
+    with _scenario_outputs(args, scenario) as outputs:
+        out = None if args.out is None else outputs.folder("--out", args.out)
+        status = run_teleop(scenario, host=args.host, port=args.port,
+                            duration_s=args.duration, realtime=args.realtime, out=out)
+    if args.out is not None:
+        print(f"report: {args.out / 'report.md'}")
+    return status
 
 
 def _add_compare_parser(subparsers) -> None:
@@ -819,6 +872,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_smooth_parser(subparsers)
     _add_demo_parser(subparsers)
     _add_simulate_parser(subparsers)
+    _add_teleop_parser(subparsers)
     _add_compare_parser(subparsers)
     _add_foresight_parser(subparsers)
     _add_experiment_parser(subparsers)

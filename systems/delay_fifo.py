@@ -136,6 +136,7 @@ class DelayFifo(LeafSystem):
         - collision_detected (optional)
         - q_sent (optional)
         - enable (optional)
+        - stop_requested (optional)
         output_ports:
         - q_newest
         - q_delayed
@@ -155,6 +156,9 @@ class DelayFifo(LeafSystem):
     - ``q_sent``: the command most recently sent to the robot (the uplink output), rad, (J,);
       unconnected = this FIFO's own last ``q_delayed``.
     - ``enable``: the operator's clutch, (1,); used by ``release="clutch"`` only.
+    - ``stop_requested``: the operator's stop button, (1,): while > 0.5 it acts as a
+      collision (the hold, or with ``on_collision = "stop"`` the jerk-limited stop, then the
+      hold); unconnected = never.
     - ``q_newest``: z_k, the sample entering the queue at this tick, rad, (J,).
     - ``q_delayed``: z_{k−L}, the sample leaving the queue (the raw delayed command), rad, (J,).
     - ``window``: [z_{k−L}, …, z_k], oldest first, rad, ((L+1)·J,): the smoother's window.
@@ -262,6 +266,7 @@ class DelayFifo(LeafSystem):
         self._collision_input = self.DeclareVectorInputPort("collision_detected", 1)
         self._q_sent_input = self.DeclareVectorInputPort("q_sent", n)
         self._enable_input = self.DeclareVectorInputPort("enable", 1)
+        self._stop_input = self.DeclareVectorInputPort("stop_requested", 1)
 
         self._queue_state = self.DeclareDiscreteState(np.tile(q0, lag))
         # [holding, clutch seen released during the hold]
@@ -338,6 +343,9 @@ class DelayFifo(LeafSystem):
     def get_enable_input_port(self):
         return self._enable_input
 
+    def get_stop_requested_input_port(self):
+        return self._stop_input
+
     def get_q_newest_output_port(self):
         return self._q_newest_output
 
@@ -385,7 +393,7 @@ class DelayFifo(LeafSystem):
         collision = (
             self._collision_input.HasValue(context)
             and self._collision_input.Eval(context)[0] > 0.5
-        )
+        ) or (self._stop_input.HasValue(context) and self._stop_input.Eval(context)[0] > 0.5)
         collision = collision or not np.all(np.isfinite(sample)) or sample.shape != (n,)
         enable = True
         if self._config.release == "clutch":

@@ -292,6 +292,7 @@ class FlexibleJointArm(Diagram):
         - q_motor
         - tracker_sample_time
         - tracker_measurement
+        - velocity_measured
         - command_rejected
         - state_desired
         - plant_state
@@ -314,6 +315,8 @@ class FlexibleJointArm(Diagram):
     - ``tracker_sample_time``: time of the held tracker sample, s, (1,).
     - ``tracker_measurement``: [t_k, p_WT, q_link, q_motor], the held sample with the time
       it was taken, (4 + 2n,): the port to log (see :class:`LaserTracker`).
+    - ``velocity_measured``: the link-side and motor-side joint velocities of the same
+      sample, [v_link; v_motor], rad/s, (2n,).
     - ``command_rejected``: 1.0 while the last received command was rejected (not finite,
       or outside the joint limits) and the robot holds its previous target, else 0.0, (1,).
     - ``state_desired``: the servo set-point [q_d; v_d], rad and rad/s, (2n,), joint order;
@@ -452,7 +455,9 @@ class FlexibleJointArm(Diagram):
                                (tracker.get_q_motor_output_port(), "q_motor"),
                                (tracker.get_sample_time_output_port(), "tracker_sample_time"),
                                (tracker.get_measurement_output_port(),
-                                "tracker_measurement")):
+                                "tracker_measurement"),
+                               (tracker.get_velocity_measured_output_port(),
+                                "velocity_measured")):
                 builder.ExportOutput(port, name)
 
         builder.ExportInput(interpolator.get_q_commanded_input_port(), "q_commanded")
@@ -552,6 +557,42 @@ class FlexibleJointArm(Diagram):
                                   np.zeros(self._plant.num_velocities(self._model_instance)))
         if self._tracker_in_diagram:
             self._tracker.Sample(self._tracker.GetMyMutableContextFromRoot(root_context))
+
+    def SetMeasuredState(self, root_context, *, q_link, q_motor, v_link, v_motor) -> None:
+        """Sets the plant's state in ``root_context`` from measured joints (the robot's
+        telemetry): motor angles and rates, and the deflection = link − motor (angle and
+        rate). The interpolator and the tracker keep their state.
+
+        Args:
+            root_context: A context of the root diagram that contains this arm.
+            q_link, q_motor: Link-side and motor-side angles, rad, (n,).
+            v_link, v_motor: Their rates, rad/s, (n,).
+
+        Raises:
+            ValueError: if a vector has the wrong size or a non-finite entry.
+        """
+        values = {}
+        for name, value in (("q_link", q_link), ("q_motor", q_motor), ("v_link", v_link),
+                            ("v_motor", v_motor)):
+            array = np.asarray(value, dtype=float)
+            if array.shape != (self.num_joints,) or not np.all(np.isfinite(array)):
+                raise ValueError(f"{name} = {array.tolist()!r} must be {self.num_joints} "
+                                 "finite numbers")
+            values[name] = array
+        plant, instance = self._plant, self._model_instance
+        plant_context = plant.GetMyMutableContextFromRoot(root_context)
+        positions = plant.GetPositions(plant_context).copy()
+        velocities = plant.GetVelocities(plant_context).copy()
+        for j, name in enumerate(self._joint_names):
+            motor = plant.GetJointByName(name + "_motor", instance)
+            deflection = plant.GetJointByName(name + "_deflection", instance)
+            positions[motor.position_start()] = values["q_motor"][j]
+            positions[deflection.position_start()] = values["q_link"][j] - values["q_motor"][j]
+            velocities[motor.velocity_start()] = values["v_motor"][j]
+            velocities[deflection.velocity_start()] = (values["v_link"][j]
+                                                       - values["v_motor"][j])
+        plant.SetPositions(plant_context, positions)
+        plant.SetVelocities(plant_context, velocities)
 
 
 def make_simulator(diagram, config: FlexibleArmConfig) -> Simulator:

@@ -38,7 +38,7 @@ class HapticCommandReceiverConfig:
 
 
 # Layout of the status state (a float64 vector; the utime is kept exactly as two halves).
-_ENABLE, _ARRIVED, _HAVE_MESSAGE, _UTIME_HIGH, _UTIME_LOW, _REJECTED = range(6)
+_ENABLE, _ARRIVED, _HAVE_MESSAGE, _UTIME_HIGH, _UTIME_LOW, _REJECTED, _STOP = range(7)
 
 
 def _split_utime(utime) -> tuple[float, float]:
@@ -71,6 +71,7 @@ class HapticCommandReceiver(LeafSystem):
         - pose_desired
         - enable
         - message_rejected
+        - stop_requested
 
     - ``lcm_message``: latest ``lcmt_teleop_haptic_command`` (the subscriber's output; a
       default-constructed message before anything arrives).
@@ -82,6 +83,10 @@ class HapticCommandReceiver(LeafSystem):
       ``timeout_s`` old, else 0, (1,).
     - ``message_rejected``: 1 if the newest message had the wrong number of axes (including
       none: ``num_axes`` <= 0), a non-finite value, or could not be decoded, (1,).
+    - ``stop_requested``: the operator's stop (the message's ``stop``) of the last valid
+      message while it is at most ``timeout_s`` old, else 0, (1,) (a device that falls
+      silent releases the clutch, it does not stop: the robot drains the FIFO to the
+      held target).
 
     Update every ``period_s``: a message is new when it differs in ``utime`` from the last one
     examined (any int64 utime, compared exactly); before any message has been examined, every
@@ -106,7 +111,7 @@ class HapticCommandReceiver(LeafSystem):
         self._pose_state = self.DeclareDiscreteState(pose0)
         # [enable of last valid message, time it arrived, a message was examined (0/1),
         #  high and low 32 bits of its utime, rejected]; see the _ENABLE... indices.
-        self._status_state = self.DeclareDiscreteState([0.0, -np.inf, 0.0, 0.0, 0.0, 0.0])
+        self._status_state = self.DeclareDiscreteState([0.0, -np.inf, 0.0, 0.0, 0.0, 0.0, 0.0])
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update_pose)
         self.DeclareForcedDiscreteUpdateEvent(self._update_pose)
         self._pose_output = self.DeclareStateOutputPort("pose_desired", self._pose_state)
@@ -114,6 +119,8 @@ class HapticCommandReceiver(LeafSystem):
         self._rejected_output = self.DeclareVectorOutputPort(
             "message_rejected", 1,
             lambda c, o: o.SetAtIndex(0, self._status(c)[_REJECTED]))
+        self._stop_output = self.DeclareVectorOutputPort(
+            "stop_requested", 1, self._calc_stop)
 
     def get_lcm_message_input_port(self):
         return self._message_input
@@ -130,14 +137,23 @@ class HapticCommandReceiver(LeafSystem):
     def get_message_rejected_output_port(self):
         return self._rejected_output
 
+    def get_stop_requested_output_port(self):
+        return self._stop_output
+
     def _status(self, context):
         return context.get_discrete_state(self._status_state).get_value()
 
     def _calc_enable(self, context, output):
+        output.SetAtIndex(0, 1.0 if self._fresh_flag(context, _ENABLE) else 0.0)
+
+    def _calc_stop(self, context, output):
+        output.SetAtIndex(0, 1.0 if self._fresh_flag(context, _STOP) else 0.0)
+
+    def _fresh_flag(self, context, index) -> bool:
+        """The flag ``index`` of the last valid message, while it is fresh and not rejected."""
         status = self._status(context)
         fresh = context.get_time() - status[_ARRIVED] <= self._config.timeout_s
-        engaged = status[_ENABLE] > 0.5 and fresh and status[_REJECTED] < 0.5
-        output.SetAtIndex(0, 1.0 if engaged else 0.0)
+        return bool(status[index] > 0.5 and fresh and status[_REJECTED] < 0.5)
 
     def _update_pose(self, context, discrete_state):
         status = np.array(self._status(context))
@@ -153,10 +169,11 @@ class HapticCommandReceiver(LeafSystem):
             if msg.num_axes == self._m and pose.shape == (self._m,) and np.all(np.isfinite(pose)):
                 discrete_state.get_mutable_vector(self._pose_state).SetFromVector(pose)
                 status[_ENABLE], status[_ARRIVED] = float(bool(msg.enable)), context.get_time()
+                status[_STOP] = float(bool(msg.stop))
                 status[_REJECTED] = 0.0
             else:
-                status[_ENABLE], status[_REJECTED] = 0.0, 1.0
+                status[_ENABLE], status[_STOP], status[_REJECTED] = 0.0, 0.0, 1.0
         undecodable = self._undecodable_input
         if undecodable.HasValue(context) and undecodable.Eval(context)[0] > 0.5:
-            status[_ENABLE], status[_REJECTED] = 0.0, 1.0
+            status[_ENABLE], status[_STOP], status[_REJECTED] = 0.0, 0.0, 1.0
         discrete_state.get_mutable_vector(self._status_state).SetFromVector(status)

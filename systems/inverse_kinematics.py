@@ -220,6 +220,8 @@ class InverseKinematicsSystem(LeafSystem):
         input_ports:
         - pose_desired
         - enable (optional)
+        - q_anchor (optional)
+        - anchor (optional)
         output_ports:
         - q_target
         - ik_failed
@@ -234,6 +236,12 @@ class InverseKinematicsSystem(LeafSystem):
       frame in the world, m and rad, R = RollPitchYaw(roll, pitch, yaw) (Drake's convention,
       R_z(yaw) R_y(pitch) R_x(roll)).
     - ``enable``: the clutch, (1,): engaged when > 0.5. Unconnected: always engaged.
+    - ``q_anchor``, ``anchor``: optional, (n,) rad and (1,): when the clutch re-engages while
+      ``anchor`` > 0.5 (the delay FIFO holds the robot: after a collision or the operator's
+      stop), the target first jumps to ``q_anchor`` (the robot's commanded pose, the
+      uplink's ``q_sent``; ignored unless finite and within the limits) and the hand is
+      re-indexed there, so that the robot resumes from where it stopped instead of
+      driving to the target it held. Unconnected: the target continues from where it held.
     - ``q_target``: the joint target, rad, (n,), ordered as ``arm.joint_names``; always
       finite, within the joint limits, and a valid IK solution of some accepted command.
     - ``ik_failed``: 1.0 if the last update rejected the command and held the target
@@ -335,6 +343,8 @@ class InverseKinematicsSystem(LeafSystem):
 
         self._pose_desired_input = self.DeclareVectorInputPort("pose_desired", m)
         self._enable_input = self.DeclareVectorInputPort("enable", 1)
+        self._q_anchor_input = self.DeclareVectorInputPort("q_anchor", n)
+        self._anchor_input = self.DeclareVectorInputPort("anchor", 1)
 
         self._q_state = self.DeclareDiscreteState(q0)
         self._offset_state = self.DeclareDiscreteState(offset0)
@@ -377,6 +387,12 @@ class InverseKinematicsSystem(LeafSystem):
 
     def get_enable_input_port(self):
         return self._enable_input
+
+    def get_q_anchor_input_port(self):
+        return self._q_anchor_input
+
+    def get_anchor_input_port(self):
+        return self._anchor_input
 
     def get_q_target_output_port(self):
         return self._q_target_output
@@ -473,6 +489,12 @@ class InverseKinematicsSystem(LeafSystem):
         else:
             offset = context.get_discrete_state(self._offset_state).get_value()
             if previous_enable <= 0.5:
+                anchor = self._anchor(context)
+                if anchor is not None:
+                    # Re-anchored at the robot's commanded pose: the target continues from
+                    # there (it held elsewhere while the FIFO held the robot).
+                    q = anchor
+                    q_new = anchor
                 # Re-index: the command continues from the held target's pose.
                 offset = clutch_offset(
                     self.forward_kinematics_pose(q), pose, planar=self._planar)
@@ -505,6 +527,18 @@ class InverseKinematicsSystem(LeafSystem):
         if pose_commanded is not None:
             discrete_state.get_mutable_vector(self._pose_commanded_state).SetFromVector(
                 pose_commanded)
+
+    def _anchor(self, context):
+        """The anchor to re-engage at, (J,) rad: ``q_anchor`` while ``anchor`` is set, if both
+        are connected and ``q_anchor`` is finite and within the joint limits; else None."""
+        if not (self._anchor_input.HasValue(context) and self._q_anchor_input.HasValue(context)):
+            return None
+        if not self._anchor_input.Eval(context)[0] > 0.5:
+            return None
+        q = np.array(self._q_anchor_input.Eval(context), dtype=float)
+        if not (np.all(np.isfinite(q)) and np.all(q >= self._lower) and np.all(q <= self._upper)):
+            return None
+        return q
 
     def _calc_ik_failed(self, context, output) -> None:
         status = IkStatus(int(context.get_discrete_state(self._status_state).get_value()[0]))

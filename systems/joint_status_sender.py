@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
@@ -30,6 +31,8 @@ class JointStatusSender(LeafSystem):
         - stream_distance (optional)
         - accepted_count (optional)
         - rejection_counts (optional)
+        - velocity_measured (optional)
+        - sample_time (optional)
         output_ports:
         - lcm_message
 
@@ -41,6 +44,9 @@ class JointStatusSender(LeafSystem):
     - ``q_commanded``: what the robot is driven to (the link guard's output), rad, (J,);
       unconnected: ``q_link``. ``guard_mode``: the link guard's mode (0 unconnected);
       ``stream_distance``: its distance to the accepted stream, rad (0 unconnected).
+    - ``velocity_measured``: [v_link; v_motor] of the tracker's sample, rad/s, (2J,);
+      unconnected: NaN (unknown, never invented). ``sample_time``: the instant of the
+      tracker's sample, s, (1,) → ``sample_utime``; unconnected: the message's time.
     - ``onboard_epoch`` (constructor): this onboard run's epoch, announced in every message
       (commands must carry it; :mod:`telesmooth.link.session`).
     - ``lcm_message``: utime = the context time in µs; seq counts published messages only
@@ -67,6 +73,8 @@ class JointStatusSender(LeafSystem):
         self._accepted_input = self.DeclareVectorInputPort("accepted_count", 1)
         self._counts_input = self.DeclareVectorInputPort("rejection_counts",
                                                          len(REJECTION_CLASSES))
+        self._velocity_input = self.DeclareVectorInputPort("velocity_measured", 2 * self._n)
+        self._sample_time_input = self.DeclareVectorInputPort("sample_time", 1)
         self._message_output = self.DeclareAbstractOutputPort(
             "lcm_message", lambda: AbstractValue.Make(lcmt_onboard_joint_status()),
             self._calc_lcm_message)
@@ -107,6 +115,12 @@ class JointStatusSender(LeafSystem):
     def get_rejection_counts_input_port(self):
         return self._counts_input
 
+    def get_velocity_measured_input_port(self):
+        return self._velocity_input
+
+    def get_sample_time_input_port(self):
+        return self._sample_time_input
+
     def get_lcm_message_output_port(self):
         return self._message_output
 
@@ -139,4 +153,9 @@ class JointStatusSender(LeafSystem):
             int(round(c)) for c in counts)
         msg.onboard_epoch = self._epoch
         msg.stream_distance_rad = float(self._optional(self._stream_distance_input, context, 0.0))
+        msg.sample_utime = int(round(1e6 * self._optional(self._sample_time_input, context, t)))
+        velocity = (self._velocity_input.Eval(context) if self._velocity_input.HasValue(context)
+                    else np.full(2 * self._n, np.nan))
+        msg.joint_velocity_link = [float(v) for v in velocity[:self._n]]
+        msg.joint_velocity_motor = [float(v) for v in velocity[self._n:]]
         output.set_value(msg)

@@ -111,6 +111,7 @@ class LaserTracker(LeafSystem):
         - q_motor
         - sample_time
         - measurement
+        - velocity_measured
 
     Ports (n = number of joints, joint order = ``joint_names``):
 
@@ -128,10 +129,13 @@ class LaserTracker(LeafSystem):
       update of the same instant), so the entry a 100 Hz logger stamps t holds the sample
       taken at t − period; only t_k tells when the sample was measured.
       :func:`tracker_record` turns such a log into one row per sample, by t_k.
+    - ``velocity_measured``: the joint velocities of the same sample (the encoders'
+      rates), [v_link (n), v_motor (n)], rad/s, (2n,): with the angles, the robot's state at
+      t_k, which the telemetry carries for the ground's predicted robot.
 
     State (discrete, updated at t_k = k·period_s, offset 0, and once at initialization):
-    the ``measurement`` vector; every output is a part of it (zero-order hold, no
-    feedthrough). Sample k's noise is
+    the ``measurement`` vector and the velocities; every output is a part of them
+    (zero-order hold, no feedthrough). Sample k's noise is
     σ·N(0, I₃) drawn from ``default_rng([seed, k])``, k = round(t_k/period_s).
 
     Before the first sample (a context that was never initialized by a Simulator) the
@@ -173,15 +177,19 @@ class LaserTracker(LeafSystem):
         if not names:
             raise ValueError(f"joint_names = {joint_names!r} must not be empty")
         motor_index, deflection_index = [], []
+        motor_velocity, deflection_velocity = [], []
         for name in names:
-            for suffix, indices in (("_motor", motor_index), ("_deflection", deflection_index)):
+            for suffix, indices, velocities in (
+                    ("_motor", motor_index, motor_velocity),
+                    ("_deflection", deflection_index, deflection_velocity)):
                 if not plant.HasJointNamed(name + suffix, model_instance):
                     raise ValueError(
                         f"joint_names: the plant has no joint {name + suffix!r} in model "
                         f"instance {plant.GetModelInstanceName(model_instance)!r}"
                     )
-                indices.append(plant.GetJointByName(name + suffix, model_instance)
-                               .position_start())
+                joint = plant.GetJointByName(name + suffix, model_instance)
+                indices.append(joint.position_start())
+                velocities.append(plant.num_positions() + joint.velocity_start())
         if not plant.HasFrameNamed(tool_frame_name, model_instance):
             raise ValueError(f"tool_frame_name = {tool_frame_name!r}: no such frame in the plant")
         self._config = config
@@ -190,6 +198,8 @@ class LaserTracker(LeafSystem):
         self._num_positions = plant.num_positions()
         self._motor_index = np.array(motor_index)
         self._deflection_index = np.array(deflection_index)
+        self._motor_velocity_index = np.array(motor_velocity)
+        self._deflection_velocity_index = np.array(deflection_velocity)
         self._tool_frame = plant.GetFrameByName(tool_frame_name, model_instance)
         self._world_frame = plant.world_frame()
         self._tool_origin = np.zeros((3, 1))
@@ -210,6 +220,8 @@ class LaserTracker(LeafSystem):
         default_sample = self._sample(
             plant.GetPositionsAndVelocities(self._plant_context), 0.0)
         self._measurement_state = self.DeclareDiscreteState(default_sample)
+        # The joint velocities of the same sample, [v_link (n), v_motor (n)].
+        self._velocity_state = self.DeclareDiscreteState(np.zeros(2 * n))
         self.DeclareInitializationDiscreteUpdateEvent(self._update_sample)
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update_sample)
 
@@ -225,6 +237,8 @@ class LaserTracker(LeafSystem):
         self._sample_time_output = self.DeclareVectorOutputPort(
             "sample_time", 1, self._slice_of_state(self._slices["sample_time"]),
             prerequisites_of_calc={self.xd_ticket()})
+        self._velocity_output = self.DeclareStateOutputPort(
+            "velocity_measured", self._velocity_state)
 
     # -- accessors ------------------------------------------------------------------------
 
@@ -253,6 +267,9 @@ class LaserTracker(LeafSystem):
 
     def get_measurement_output_port(self):
         return self._measurement_output
+
+    def get_velocity_measured_output_port(self):
+        return self._velocity_output
 
     def Record(self, times_s, plant_states) -> TrackerRecord:
         """The samples the tracker takes of given plant states at given instants.
@@ -336,5 +353,9 @@ class LaserTracker(LeafSystem):
         return self._config.noise_m * rng.standard_normal(3)
 
     def _update_sample(self, context, discrete_state) -> None:
+        state = self._plant_state_input.Eval(context)
         discrete_state.get_mutable_vector(self._measurement_state).SetFromVector(self._sample(
-            self._plant_state_input.Eval(context), context.get_time()))
+            state, context.get_time()))
+        v_motor = state[self._motor_velocity_index]
+        discrete_state.get_mutable_vector(self._velocity_state).SetFromVector(
+            np.concatenate([v_motor + state[self._deflection_velocity_index], v_motor]))

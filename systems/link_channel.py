@@ -57,7 +57,8 @@ class LinkChannel(LeafSystem):
         - link_counts
 
     - ``lcm_message``: the sender's current message (abstract, ``lcm_type``). A message is a
-      new packet when its (session_id, seq) differs from the previous one's and seq ≥ 0
+      new packet when its (session_id, seq) (a type without a session: its seq) differs
+      from the previous one's and seq ≥ 0
       (the sender's seq = −1 placeholder is not sent). It is sent at the first poll that
       sees it.
     - ``packets``: what arrived at the far end so far, as the
@@ -127,7 +128,8 @@ class LinkChannel(LeafSystem):
         link = self._link(context)
         now = context.get_time()
         msg = self._message_input.Eval(context)
-        key = (int(msg.session_id), int(msg.seq))
+        # Telemetry has no session: its seq alone numbers it.
+        key = (int(getattr(msg, "session_id", 0)), int(msg.seq))
         new_packet = msg.seq >= 0 and key != link.last_key
         next_time = link.queue.next_delivery_time()
         if not new_packet and (next_time is None or next_time > now):

@@ -4,7 +4,8 @@ Every ``import telesmooth.X…`` and ``from telesmooth.X… import …`` counts,
 imports included (a cycle hidden in a function is still a cycle). The layers, low to high:
 
     top-level modules (user_input, atomic_files, typed_yaml, compiled)
-    lcm_types → arms → smoothing, safety (pure: no pydrake.systems) → datasets
+    lcm_types → arms → smoothing, safety (pure: no pydrake.systems), console (no Drake)
+    → datasets
     → link (pure Python: no Drake) → systems → diagrams → studies → scripts
 
 A package may import its own layer's or lower ones, never a higher one, and the packages'
@@ -26,7 +27,7 @@ LAYERS = (
     ("user_input", "atomic_files", "typed_yaml", "compiled"),
     ("lcm_types",),
     ("arms",),
-    ("smoothing", "safety"),
+    ("smoothing", "safety", "console"),
     ("datasets",),
     ("link",),
     ("systems",),
@@ -36,7 +37,8 @@ LAYERS = (
 )
 RANK = {unit: rank for rank, units in enumerate(LAYERS) for unit in units}
 
-PURE = {"smoothing": ("pydrake.systems",), "safety": ("pydrake.systems",), "link": ("pydrake",)}
+PURE = {"smoothing": ("pydrake.systems",), "safety": ("pydrake.systems",), "link": ("pydrake",),
+        "console": ("pydrake",)}
 """Packages and the imports they must not have (at all, function-local ones included)."""
 
 

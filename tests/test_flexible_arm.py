@@ -179,7 +179,7 @@ def test_ports_and_plant_structure_air_bearing():
              for i in range(dut.num_output_ports()) if dut.get_output_port(i).get_name()
              != "query_object"}
     assert sizes == {"position_measured": 3, "q_link": 3, "q_motor": 3,
-                     "tracker_sample_time": 1, "tracker_measurement": 10,
+                     "tracker_sample_time": 1, "tracker_measurement": 10, "velocity_measured": 6,
                      "command_rejected": 1, "state_desired": 6, "command_ramp": 7,
                      "plant_state": 12}
     plant = dut.plant

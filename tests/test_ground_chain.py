@@ -90,7 +90,7 @@ def run_chain(z, *, method="online-cks", collision=None, enable=None, fifo_confi
 def test_fifo_port_contract_and_first_outputs():
     dut = DelayFifo(num_joints=2, initial_position_rad=[0.1, 0.2])
     names = [dut.get_input_port(i).get_name() for i in range(dut.num_input_ports())]
-    assert names == ["q_target", "collision_detected", "q_sent", "enable"]
+    assert names == ["q_target", "collision_detected", "q_sent", "enable", "stop_requested"]
     outputs = {dut.get_output_port(i).get_name(): dut.get_output_port(i).size()
                for i in range(dut.num_output_ports())}
     assert outputs == {"q_newest": 2, "q_delayed": 2, "window": 8, "reset": 1, "holding": 1}

@@ -157,13 +157,14 @@ def test_planar_arm_from_description_equals_the_planar_module_arm():
 def test_port_contract_and_initial_outputs(arm, q0, m):
     dut = InverseKinematicsSystem(arm=arm, initial_position_rad=q0)
     n = arm.num_joints
-    assert [dut.get_input_port(i).get_name() for i in range(2)] == ["pose_desired", "enable"]
-    assert [dut.get_input_port(i).size() for i in range(2)] == [m, 1]
+    assert [dut.get_input_port(i).get_name() for i in range(4)] == [
+        "pose_desired", "enable", "q_anchor", "anchor"]
+    assert [dut.get_input_port(i).size() for i in range(4)] == [m, 1, n, 1]
     assert [dut.get_output_port(i).get_name() for i in range(4)] == [
         "q_target", "ik_failed", "ik_status", "pose_commanded"]
     assert [dut.get_output_port(i).size() for i in range(4)] == [n, 1, 1, m]
-    assert dut.num_input_ports() == 2 and dut.num_output_ports() == 4
-    assert not any(dut.HasDirectFeedthrough(i, j) for i in range(2) for j in range(4))
+    assert dut.num_input_ports() == 4 and dut.num_output_ports() == 4
+    assert not any(dut.HasDirectFeedthrough(i, j) for i in range(4) for j in range(4))
     timing = dut.GetUniquePeriodicDiscreteUpdateAttribute()
     assert (timing.period_sec(), timing.offset_sec()) == (PERIOD_S, 0.0)
     assert len(dut.pose_names) == m and dut.is_planar == (m == 3)

@@ -52,6 +52,8 @@ def _status():
     msg.last_command_seq, msg.command_rejected, msg.command_timeout = -1, False, True
     msg.last_command_session_id = 1_790_000_000_000_000
     msg.joint_position_commanded = [0.49, 0.26]
+    msg.sample_utime = 32
+    msg.joint_velocity_link, msg.joint_velocity_motor = [0.01, -0.02], [0.011, -0.019]
     msg.guard_mode = 1
     (msg.accepted_count, msg.rejected_invalid_count, msg.rejected_auth_count,
      msg.dropped_duplicate_count, msg.dropped_stale_count, msg.undecodable_count) = range(6)

@@ -147,6 +147,7 @@ def _status(q):
     msg.joint_position_link = list(q)
     msg.joint_position_motor = list(q)
     msg.joint_position_commanded = list(q)
+    msg.joint_velocity_link = msg.joint_velocity_motor = [0.0] * len(q)
     return msg.encode()
 
 

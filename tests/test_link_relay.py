@@ -96,6 +96,7 @@ def _status(seq):
     msg.joint_position_motor = [0.5, seq * 1.0]
     msg.tool_position_measured = [1.0, 0.0, 0.45]
     msg.joint_position_commanded = [0.0, 0.0]
+    msg.joint_velocity_link = msg.joint_velocity_motor = [0.0, 0.0]
     msg.last_command_seq = -1
     return msg
 

@@ -165,7 +165,7 @@ def test_record_refuses_states_that_do_not_fit(times, width, message):
 def test_a_robot_without_its_tracker_has_no_tracker_ports():
     inside, outside = FlexibleJointArm(), FlexibleJointArm(tracker_in_diagram=False)
     tracker_ports = {"position_measured", "q_link", "q_motor", "tracker_sample_time",
-                     "tracker_measurement"}
+                     "tracker_measurement", "velocity_measured"}
     names = {dut: {dut.get_output_port(i).get_name() for i in range(dut.num_output_ports())}
              for dut in (inside, outside)}
     assert tracker_ports <= names[inside]

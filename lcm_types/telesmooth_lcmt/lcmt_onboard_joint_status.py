@@ -15,11 +15,11 @@ class lcmt_onboard_joint_status(object):
     Channel: ONBOARD_JOINT_STATUS, nominal 100 Hz.
     """
 
-    __slots__ = ["utime", "seq", "num_joints", "joint_position_link", "joint_position_motor", "tool_position_measured", "last_command_seq", "command_rejected", "command_timeout", "last_command_session_id", "joint_position_commanded", "guard_mode", "accepted_count", "rejected_invalid_count", "rejected_auth_count", "dropped_duplicate_count", "dropped_stale_count", "undecodable_count", "onboard_epoch", "rejected_session_count", "stream_distance_rad"]
+    __slots__ = ["utime", "seq", "num_joints", "joint_position_link", "joint_position_motor", "tool_position_measured", "last_command_seq", "command_rejected", "command_timeout", "last_command_session_id", "joint_position_commanded", "guard_mode", "accepted_count", "rejected_invalid_count", "rejected_auth_count", "dropped_duplicate_count", "dropped_stale_count", "undecodable_count", "onboard_epoch", "rejected_session_count", "stream_distance_rad", "sample_utime", "joint_velocity_link", "joint_velocity_motor"]
 
-    __typenames__ = ["int64_t", "int32_t", "int32_t", "double", "double", "double", "int32_t", "boolean", "boolean", "int64_t", "double", "int8_t", "int32_t", "int32_t", "int32_t", "int32_t", "int32_t", "int32_t", "int64_t", "int32_t", "double"]
+    __typenames__ = ["int64_t", "int32_t", "int32_t", "double", "double", "double", "int32_t", "boolean", "boolean", "int64_t", "double", "int8_t", "int32_t", "int32_t", "int32_t", "int32_t", "int32_t", "int32_t", "int64_t", "int32_t", "double", "int64_t", "double", "double"]
 
-    __dimensions__ = [None, None, None, ["num_joints"], ["num_joints"], [3], None, None, None, None, ["num_joints"], None, None, None, None, None, None, None, None, None, None]
+    __dimensions__ = [None, None, None, ["num_joints"], ["num_joints"], [3], None, None, None, None, ["num_joints"], None, None, None, None, None, None, None, None, None, None, None, ["num_joints"], ["num_joints"]]
 
     def __init__(self):
         self.utime = 0
@@ -145,6 +145,27 @@ class lcmt_onboard_joint_status(object):
         LCM Type: double
         """
 
+        self.sample_utime = 0
+        """
+        Microseconds, onboard clock: the instant the laser tracker sampled the robot.
+        joint_position_link, joint_position_motor, tool_position_measured and the velocities
+        below are of this instant (utime is when the message was sent).
+        LCM Type: int64_t
+        """
+
+        self.joint_velocity_link = []
+        """
+        Link-side joint velocities at sample_utime, rad/s (with the positions, the robot's
+        state: the ground's predicted robot re-synchronises from it).
+        LCM Type: double[num_joints]
+        """
+
+        self.joint_velocity_motor = []
+        """
+        Motor-side joint velocities at sample_utime, rad/s.
+        LCM Type: double[num_joints]
+        """
+
 
     def encode(self):
         buf = BytesIO()
@@ -159,7 +180,9 @@ class lcmt_onboard_joint_status(object):
         buf.write(struct.pack('>3d', *self.tool_position_measured[:3]))
         buf.write(struct.pack(">ibbq", self.last_command_seq, self.command_rejected, self.command_timeout, self.last_command_session_id))
         buf.write(struct.pack('>%dd' % self.num_joints, *self.joint_position_commanded[:self.num_joints]))
-        buf.write(struct.pack(">biiiiiiqid", self.guard_mode, self.accepted_count, self.rejected_invalid_count, self.rejected_auth_count, self.dropped_duplicate_count, self.dropped_stale_count, self.undecodable_count, self.onboard_epoch, self.rejected_session_count, self.stream_distance_rad))
+        buf.write(struct.pack(">biiiiiiqidq", self.guard_mode, self.accepted_count, self.rejected_invalid_count, self.rejected_auth_count, self.dropped_duplicate_count, self.dropped_stale_count, self.undecodable_count, self.onboard_epoch, self.rejected_session_count, self.stream_distance_rad, self.sample_utime))
+        buf.write(struct.pack('>%dd' % self.num_joints, *self.joint_velocity_link[:self.num_joints]))
+        buf.write(struct.pack('>%dd' % self.num_joints, *self.joint_velocity_motor[:self.num_joints]))
 
     @staticmethod
     def decode(data: bytes):
@@ -183,13 +206,15 @@ class lcmt_onboard_joint_status(object):
         self.command_timeout = bool(struct.unpack('b', buf.read(1))[0])
         self.last_command_session_id = struct.unpack(">q", buf.read(8))[0]
         self.joint_position_commanded = struct.unpack('>%dd' % self.num_joints, buf.read(self.num_joints * 8))
-        self.guard_mode, self.accepted_count, self.rejected_invalid_count, self.rejected_auth_count, self.dropped_duplicate_count, self.dropped_stale_count, self.undecodable_count, self.onboard_epoch, self.rejected_session_count, self.stream_distance_rad = struct.unpack(">biiiiiiqid", buf.read(45))
+        self.guard_mode, self.accepted_count, self.rejected_invalid_count, self.rejected_auth_count, self.dropped_duplicate_count, self.dropped_stale_count, self.undecodable_count, self.onboard_epoch, self.rejected_session_count, self.stream_distance_rad, self.sample_utime = struct.unpack(">biiiiiiqidq", buf.read(53))
+        self.joint_velocity_link = struct.unpack('>%dd' % self.num_joints, buf.read(self.num_joints * 8))
+        self.joint_velocity_motor = struct.unpack('>%dd' % self.num_joints, buf.read(self.num_joints * 8))
         return self
 
     @staticmethod
     def _get_hash_recursive(parents):
         if lcmt_onboard_joint_status in parents: return 0
-        tmphash = (0xfd7606171c9a813) & 0xffffffffffffffff
+        tmphash = (0x9a6116dcffd5fb92) & 0xffffffffffffffff
         tmphash  = (((tmphash<<1)&0xffffffffffffffff) + (tmphash>>63)) & 0xffffffffffffffff
         return tmphash
     _packed_fingerprint = None

@@ -16,11 +16,11 @@ class lcmt_teleop_haptic_command(object):
     Before the first message the ground process holds the arm's initial pose.
     """
 
-    __slots__ = ["utime", "seq", "num_axes", "pose_desired", "enable"]
+    __slots__ = ["utime", "seq", "num_axes", "pose_desired", "enable", "stop"]
 
-    __typenames__ = ["int64_t", "int32_t", "int32_t", "double", "boolean"]
+    __typenames__ = ["int64_t", "int32_t", "int32_t", "double", "boolean", "boolean"]
 
-    __dimensions__ = [None, None, None, ["num_axes"], None]
+    __dimensions__ = [None, None, None, ["num_axes"], None, None]
 
     def __init__(self):
         self.utime = 0
@@ -55,6 +55,14 @@ class lcmt_teleop_haptic_command(object):
         LCM Type: boolean
         """
 
+        self.stop = False
+        """
+        The operator's stop: while true the ground brings the robot to rest within the limits
+        (the pre-simulator's collision stop) and holds it there; an operator console keeps it
+        set until the operator engages the clutch again.
+        LCM Type: boolean
+        """
+
 
     def encode(self):
         buf = BytesIO()
@@ -65,7 +73,7 @@ class lcmt_teleop_haptic_command(object):
     def _encode_one(self, buf):
         buf.write(struct.pack(">qii", self.utime, self.seq, self.num_axes))
         buf.write(struct.pack('>%dd' % self.num_axes, *self.pose_desired[:self.num_axes]))
-        buf.write(struct.pack(">b", self.enable))
+        buf.write(struct.pack(">bb", self.enable, self.stop))
 
     @staticmethod
     def decode(data: bytes):
@@ -83,12 +91,13 @@ class lcmt_teleop_haptic_command(object):
         self.utime, self.seq, self.num_axes = struct.unpack(">qii", buf.read(16))
         self.pose_desired = struct.unpack('>%dd' % self.num_axes, buf.read(self.num_axes * 8))
         self.enable = bool(struct.unpack('b', buf.read(1))[0])
+        self.stop = bool(struct.unpack('b', buf.read(1))[0])
         return self
 
     @staticmethod
     def _get_hash_recursive(parents):
         if lcmt_teleop_haptic_command in parents: return 0
-        tmphash = (0xd9370ef809d01d55) & 0xffffffffffffffff
+        tmphash = (0x281a037578e1b5b2) & 0xffffffffffffffff
         tmphash  = (((tmphash<<1)&0xffffffffffffffff) + (tmphash>>63)) & 0xffffffffffffffff
         return tmphash
     _packed_fingerprint = None

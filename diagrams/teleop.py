@@ -1,0 +1,177 @@
+"""The operator's seat in one process: the whole deployed chain with telemetry coming back,
+the predicted robot, and (with a browser) the console and the display.
+
+:func:`MakeTeleopDiagram` builds
+
+    operator (console, or the scenario's recording) → ground station → sender
+        → uplink link (``link.faults``) → receiver → link guard → flexible plant → tracker
+        → telemetry (``lcmt_onboard_joint_status``) → downlink (``link.downlink``)
+        → predicted robot (:class:`~telesmooth.systems.robot_predictor.RobotPredictor`)
+        → display (Meshcat)
+
+The predicted robot runs :func:`MakePredictorReplica`: a copy of the onboard chain built by
+the same builders (receiver, guard, interpolator, plant), with the ground's model of the
+plant's drive (``predictor.drive``) and the uplink's nominal delay, fed the packets the ground
+sent. Builders never simulate; ``telesmooth teleop`` (:mod:`telesmooth.scripts.teleop`) runs
+it against the wall clock.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput
+
+from telesmooth.diagrams.scenario import Scenario
+from telesmooth.diagrams.teleoperation import (
+    AddDeployedLink,
+    AddGroundStation,
+    AddJointStatusSender,
+    AddOnboardCommandPath,
+    AddOnboardRobot,
+    GroundHandles,
+    OnboardHandles,
+    add_ground_loggers,
+    add_link_loggers,
+    add_onboard_loggers,
+)
+from telesmooth.lcm_types import lcmt_onboard_joint_status
+from telesmooth.systems.flexible_arm import make_simulator
+from telesmooth.systems.link_channel import LinkChannel
+from telesmooth.systems.packet_replay import PacketLog, PacketReplay
+from telesmooth.systems.robot_predictor import PredictorReplica, RobotPredictor
+
+__all__ = ["MakePredictorReplica", "MakeTeleopDiagram", "TeleopHandles", "console_pose_names",
+           "model_scenario"]
+
+
+@dataclasses.dataclass(frozen=True)
+class TeleopHandles:
+    """A built teleoperation diagram with its stages and loggers (name → VectorLogSink)."""
+
+    diagram: object
+    ground: GroundHandles
+    onboard: OnboardHandles
+    predictor: RobotPredictor
+    downlink: LinkChannel
+    logs: dict
+    scenario: Scenario
+    console: object | None = None
+    display: object | None = None
+
+
+def console_pose_names(scenario: Scenario) -> tuple[str, ...]:
+    """The pose coordinates of the operator's hand for the scenario's arm."""
+    from telesmooth.datasets.haptic_recording import PLANAR_POSE_NAMES, SPATIAL_POSE_NAMES
+
+    return PLANAR_POSE_NAMES if scenario.arm == "air_bearing_arm" else SPATIAL_POSE_NAMES
+
+
+def model_scenario(scenario: Scenario) -> Scenario:
+    """The scenario as the ground's model of the robot sees it: the predictor's drive (if
+    given) for the robot's, and a noise-free tracker (the model's own tool position)."""
+    onboard = scenario.onboard
+    if scenario.predictor.drive is not None:
+        onboard = dataclasses.replace(onboard, drive=scenario.predictor.drive)
+    onboard = dataclasses.replace(onboard, tracker=dataclasses.replace(onboard.tracker,
+                                                                       noise_m=0.0))
+    return dataclasses.replace(scenario, onboard=onboard)
+
+
+def MakePredictorReplica(scenario: Scenario, *, initial_position_rad,
+                         collision_model=None) -> PredictorReplica:
+    """The copy of the onboard chain that the predicted robot runs: ``PacketReplay`` (the
+    uplink's nominal delay, ``link.faults.delay_s``; the ground cannot know which packets a
+    faulty link loses) → receiver → link guard → the model's plant
+    (:func:`model_scenario`), at rest at ``initial_position_rad``. ``collision_model``: the
+    pre-simulator's, shared with the guard's ramp-down check (None builds one)."""
+    model = model_scenario(scenario)
+    builder = DiagramBuilder()
+    log = PacketLog()
+    poll = scenario.command_receiver.poll_period_s
+    # The link as AddDeployedLink's channel delivers on a perfect link with the nominal delay.
+    replay = builder.AddNamedSystem("packet_replay", PacketReplay(
+        log, delay_s=scenario.link.faults.delay_s, poll_period_s=poll,
+        poll_offset_s=0.9 * poll))
+    receiver, guard = AddOnboardCommandPath(
+        builder, model, packets=replay.get_packets_output_port(),
+        initial_position_rad=initial_position_rad, collision_model=collision_model)
+    # The predictor reads the plant's state itself: no tracker event stops the integrator.
+    robot = AddOnboardRobot(builder, model, initial_position_rad=initial_position_rad,
+                            tracker_in_diagram=False)
+    builder.Connect(guard.get_q_commanded_output_port(), robot.GetInputPort("q_commanded"))
+    diagram = builder.Build()
+    diagram.set_name("predicted_robot")
+    config = robot.config
+    return PredictorReplica(diagram=diagram, robot=robot, packets=log,
+                            make_simulator=lambda d: make_simulator(d, config))
+
+
+def MakeTeleopDiagram(scenario: Scenario, *, console=None, display=None,
+                      monitor=None) -> TeleopHandles:
+    """The operator's seat in one process (module docstring).
+
+    Args:
+        scenario: The scenario (its ``chain`` is the deployed one whatever it says: the
+            robot is driven through the onboard receiver and guard, and its telemetry comes
+            back over ``link.downlink``).
+        console: The operator's hand, a system with ``pose_desired``, ``enable`` and
+            ``stop_requested`` outputs (the browser console); None: the scenario's haptic
+            source (a recording drives the seat, e.g. in tests).
+        display: Optional system drawing the seat; connected by
+            :meth:`~telesmooth.systems.operator_display.OperatorDisplay.Connect`.
+        monitor: Optional system without ports added as it is (e.g. the
+            :class:`~telesmooth.systems.wall_clock_monitor.WallClockMonitor` of a live run).
+    """
+    builder = DiagramBuilder()
+    if console is not None:
+        builder.AddNamedSystem("operator_console", console)
+    ground = AddGroundStation(builder, scenario, haptic=console)
+    q0 = ground.initial_position_rad
+    n = len(ground.joint_names)
+    robot = AddOnboardRobot(builder, scenario, initial_position_rad=q0)
+    sender, receiver, guard, link = AddDeployedLink(builder, ground, scenario, robot)
+    status = AddJointStatusSender(builder, robot, receiver, guard)
+    tracker_period = scenario.onboard.tracker.period_s
+    # The telemetry leaves the robot as the onboard process publishes it (publish_offset_s
+    # after each sample) and crosses the downlink.
+    downlink = builder.AddNamedSystem("downlink", LinkChannel(
+        scenario.link.downlink, lcm_type=lcmt_onboard_joint_status,
+        poll_period_s=tracker_period, poll_offset_s=scenario.publish_offset_s))
+    builder.Connect(status.get_lcm_message_output_port(), downlink.get_lcm_message_input_port())
+    replica = MakePredictorReplica(scenario, initial_position_rad=q0,
+                                   collision_model=ground.collision_checker.collision_model)
+    predictor = builder.AddNamedSystem("robot_predictor", RobotPredictor(
+        replica, num_joints=n, period_s=scenario.predictor.period_s,
+        resync_period_s=scenario.predictor.resync_period_s, initial_position_rad=q0))
+    builder.Connect(sender.get_lcm_message_output_port(),
+                    predictor.get_uplink_message_input_port())
+    builder.Connect(downlink.get_packets_output_port(),
+                    predictor.get_telemetry_packets_input_port())
+    if display is not None:
+        builder.AddNamedSystem("operator_display", display)
+        display.Connect(builder, ground=ground, predictor=predictor, console=console)
+    if monitor is not None:
+        builder.AddNamedSystem("wall_clock_monitor", monitor)
+    if console is not None and console.get_q_anchor_input_port() is not None:
+        # Engaging after a stop re-anchors the hand where the robot was held.
+        builder.Connect(ground.uplink.get_q_sent_output_port(),
+                        console.get_q_anchor_input_port())
+        builder.Connect(ground.fifo.get_holding_output_port(), console.get_anchor_input_port())
+    logs = add_ground_loggers(builder, ground, scenario)
+    logs.update(add_onboard_loggers(builder, robot, tracker_period))
+    poll = scenario.command_receiver.poll_period_s
+    logs.update(add_link_loggers(builder, receiver, guard, poll))
+    haptic_period = scenario.haptic.period_s
+    logs["hand_pose"] = LogVectorOutput(ground.haptic.get_pose_desired_output_port(), builder,
+                                        haptic_period)
+    logs["hand_enable"] = LogVectorOutput(ground.haptic.get_enable_output_port(), builder,
+                                          haptic_period)
+    diagram = builder.Build()
+    diagram.set_name("teleop")
+    return TeleopHandles(
+        diagram=diagram, ground=ground,
+        onboard=OnboardHandles(arm=robot, receiver=receiver, guard=guard, link=link),
+        predictor=predictor, downlink=downlink, logs=logs, scenario=scenario,
+        console=console, display=display)

@@ -1,0 +1,202 @@
+"""`telesmooth teleop`: drive the robot live from a browser, the whole chain in one process.
+
+The operator's console is a Meshcat page (localhost only unless ``--host`` says otherwise):
+sliders and keys, Enable (Space) and Stop (Esc), a gamepad. The chain runs against the wall
+clock: console → ground station → uplink (``link.faults``) → onboard receiver and link
+guard → flexible plant → telemetry (``link.downlink``) → the predicted robot → the display
+(:func:`~telesmooth.diagrams.teleop.MakeTeleopDiagram`). It prints one line with the page's
+address, then a progress line every second (real-time rate, late ticks, the link and the
+robot's guard, the clutch), and with ``--out`` writes the session: the operator's hand as
+a haptic recording (``operator.npz`` and ``operator.csv``, the format ``simulate``'s
+``file`` source reads), the uplink and telemetry logs, ``predicted.csv`` and ``report.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import signal
+import sys
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["console_scenario", "run_teleop", "write_session"]
+
+PROGRESS_PERIOD_S = 1.0
+SLICE_S = 0.1
+
+
+def _log(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def console_scenario(scenario):
+    """The scenario as the live console drives it: a live operator (``haptic.source =
+    "lcm"``: the hand starts at ``haptic.live_initial_pose``), the deployed chain, and a
+    collision or the operator's Stop brakes within the limits (``fifo.on_collision =
+    "stop"``) unless the scenario says ``hold``."""
+    haptic = dataclasses.replace(scenario.haptic, source="lcm")
+    return dataclasses.replace(scenario, haptic=haptic, chain="deployed")
+
+
+def _initial_pose(scenario) -> np.ndarray:
+    pose = np.asarray(scenario.haptic.live_initial_pose, dtype=float)
+    if scenario.arm == "space_arm":
+        from telesmooth.arms.air_bearing import planar_pose_to_space_arm
+
+        pose = planar_pose_to_space_arm(pose)
+    return pose
+
+
+def _slider_ranges(scenario) -> dict:
+    from telesmooth.arms.air_bearing import SHOULDER_IN_BASE_M
+
+    if scenario.arm == "air_bearing_arm":
+        return {"x_m": (-1.1, 1.1), "y_m": (-1.1, 1.1)}
+    centre = np.asarray(SHOULDER_IN_BASE_M, dtype=float)
+    return {name: (float(c - 1.2), float(c + 1.2))
+            for name, c in zip(("x_m", "y_m", "z_m"), centre)}
+
+
+def open_meshcat(host: str, port: int | None):
+    """A Meshcat server on ``host`` (``127.0.0.1`` by default: this machine only); a port in
+    use is one clear error."""
+    from pydrake.geometry import Meshcat, MeshcatParams
+
+    if host not in ("127.0.0.1", "localhost"):
+        _log(f"teleop: warning: --host {host}: the operator console is reachable from other "
+             "machines on that interface; anyone who reaches it can drive the robot")
+    try:
+        return Meshcat(MeshcatParams(host=host, port=port))
+    except RuntimeError as error:
+        where = f"--port = {port}" if port is not None else "a free port from 7000"
+        raise RuntimeError(f"{where}: Meshcat could not listen on {host} (the port is in use "
+                           f"or not allowed: {error}); give another --port") from None
+
+
+def build_teleop(scenario, meshcat, *, monitor=None):
+    """The teleop diagram with the browser console and the display in ``meshcat`` (and the
+    wall-clock ``monitor``); returns (handles, console, display)."""
+    from telesmooth.arms.joint_vectors import as_per_joint
+    from telesmooth.console.input import console_params, reach_saturation
+    from telesmooth.diagrams.teleop import MakeTeleopDiagram, console_pose_names
+    from telesmooth.diagrams.visualization import draw_workspace
+    from telesmooth.systems.inverse_kinematics import IkStatus
+    from telesmooth.systems.operator_console import MeshcatControls, OperatorConsole
+    from telesmooth.systems.operator_display import OperatorDisplay
+
+    arm = scenario.arm_description
+    names = console_pose_names(scenario)
+    pose0 = _initial_pose(scenario)
+    params = console_params(names, period_s=scenario.haptic.period_s,
+                            saturate=reach_saturation(scenario.arm))
+    controls = MeshcatControls(meshcat, names, initial_pose=pose0,
+                               position_range_m=_slider_ranges(scenario))
+    fk_holder = {}
+    console = OperatorConsole(params, controls, initial_pose=pose0,
+                              forward_kinematics=lambda q: fk_holder["ik"]
+                              .forward_kinematics_pose(q), num_joints=arm.num_joints)
+    smoother = scenario.smoother
+    display = OperatorDisplay(
+        meshcat, arm, pose_names=names, period_s=scenario.predictor.period_s,
+        uplink_period_s=scenario.uplink.period_s,
+        max_acceleration=as_per_joint("max_acceleration_rad_per_s2",
+                                      smoother.max_acceleration_rad_per_s2, arm.num_joints,
+                                      arm.joint_names, allow_inf=True),
+        max_jerk=as_per_joint("max_jerk_rad_per_s3", smoother.max_jerk_rad_per_s3,
+                              arm.num_joints, arm.joint_names, allow_inf=True),
+        residual_warning_m=max(scenario.predictor.residual_warning_m,
+                               5.0 * scenario.onboard.tracker.noise_m),
+        ik_names={status.value: status.name.lower().replace("_", " ")
+                  for status in IkStatus})
+    handles = MakeTeleopDiagram(scenario, console=console, display=display, monitor=monitor)
+    fk_holder["ik"] = handles.ground.inverse_kinematics
+    draw_workspace(meshcat, scenario.workspace_or_default)
+    return handles, console, display
+
+
+def run_teleop(scenario, *, host: str = "127.0.0.1", port: int | None = None,
+               duration_s: float | None = None, realtime: float = 1.0,
+               out: Path | None = None) -> int:
+    """Runs the live chain until ``duration_s`` (None: until SIGINT/SIGTERM) and writes the
+    session into ``out``."""
+    from telesmooth.systems.flexible_arm import make_simulator
+    from telesmooth.systems.wall_clock_monitor import WallClockMonitor
+
+    scenario = console_scenario(scenario)
+    meshcat = open_meshcat(host, port)
+    url = meshcat.web_url().rstrip("/") + "/"
+    # A publish per haptic tick records when the tick really ran.
+    monitor = WallClockMonitor(scenario.haptic.period_s, rate=max(realtime, 1e-9))
+    handles, console, display = build_teleop(scenario, meshcat, monitor=monitor)
+    simulator = make_simulator(handles.diagram, scenario.onboard)
+    print(f"operator console: {url}", flush=True)
+    _log(f"teleop: open {url} in a browser; Space engages the clutch, A/D S/W move the hand"
+         + (", K/I up/down" if scenario.arm == "space_arm" else "")
+         + "; Esc stops. Ctrl-C ends the session.")
+    stopped = []
+
+    def on_signal(signum, _frame):
+        if stopped:
+            raise KeyboardInterrupt
+        stopped.append(signal.Signals(signum).name)
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    if realtime > 0:
+        simulator.set_target_realtime_rate(realtime)
+    simulator.Initialize()
+    end = math.inf if duration_s is None else float(duration_s)
+    next_progress = PROGRESS_PERIOD_S
+    try:
+        while not stopped and simulator.get_context().get_time() < end - 1e-9:
+            target = min(end, simulator.get_context().get_time() + SLICE_S)
+            simulator.AdvanceTo(target)
+            stats = monitor.statistics(last_s=1.0)
+            display.clock.realtime_rate = stats.realtime_rate
+            display.clock.late_ticks = monitor.statistics().late_ticks
+            if target >= next_progress - 1e-9:
+                _log(_progress_line(handles, simulator.get_context(), monitor))
+                next_progress += PROGRESS_PERIOD_S
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+    if stopped:
+        _log(f"teleop: {stopped[0]} at t = {simulator.get_context().get_time():.2f} s; "
+             "ending the session")
+    stats = monitor.statistics()
+    _log(f"teleop: {simulator.get_context().get_time():.2f} s at {stats.realtime_rate:.3f}× "
+         f"real time; late ticks {stats.late_ticks} of {stats.ticks} (worst "
+         f"{1000 * stats.worst_s:.1f} ms)")
+    if out is not None:
+        write_session(Path(out), handles, simulator.get_context(), monitor=monitor)
+    return 0
+
+
+def _progress_line(handles, context, monitor) -> str:
+    from telesmooth.safety.guard import GuardMode
+
+    predictor = handles.predictor
+    view = predictor.view(predictor.GetMyContextFromRoot(context))
+    stats = monitor.statistics(last_s=1.0)
+    console = handles.console
+    state = console.console_state(console.GetMyContextFromRoot(context)) if console else None
+    clutch = ("stopped" if state is not None and state.stop else
+              "engaged" if state is not None and state.enabled else "released")
+    link = ("no telemetry yet" if not math.isfinite(view.telemetry_silence_s) else
+            f"no telemetry for {view.telemetry_silence_s:.1f} s"
+            if view.telemetry_silence_s > 1.0 else
+            f"telemetry {1000 * view.telemetry_age_s:.0f} ms old")
+    guard = ("—" if view.guard_mode < 0 else GuardMode(int(view.guard_mode)).label)
+    return (f"teleop: t = {context.get_time():6.1f} s, real time {stats.realtime_rate:.2f}×, "
+            f"late ticks {monitor.statistics().late_ticks} (worst {1000 * stats.worst_s:.0f} "
+            f"ms), link: {link}, robot guard {guard}, clutch {clutch}, prediction residual "
+            + ("—" if not math.isfinite(view.residual_m) else f"{1000 * view.residual_m:.2f} mm"))
+
+
+def write_session(out: Path, handles, context, *, monitor=None) -> Path:
+    """The session's files in ``out``: the operator's hand (``operator.npz``,
+    ``operator.csv``), ``predicted.csv``, the chain's logs and ``report.md``."""
+    from telesmooth.scripts.teleop_report import write_teleop_report
+
+    return write_teleop_report(out, handles, context, monitor=monitor)
