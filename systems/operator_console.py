@@ -120,7 +120,7 @@ class OperatorConsole(LeafSystem):
       is released, if the console released it); ``saturated`` (1,): the wanted pose was
       outside the arm's reach and is held on its boundary.
 
-    Update: periodic unrestricted every ``params.period_s`` from 0: read the controls
+    Update: periodic discrete every ``params.period_s`` from 0: read the controls
     (``controls.read``), :func:`~telesmooth.console.input.console_step`, move the sliders if
     the step asks. Outputs read the state (no feedthrough).
     """
@@ -140,7 +140,10 @@ class OperatorConsole(LeafSystem):
             self._anchor_input = self.DeclareVectorInputPort("anchor", 1)
         else:
             self._q_anchor_input = self._anchor_input = None
-        self.DeclarePeriodicUnrestrictedUpdateEvent(params.period_s, 0.0, self._update)
+        # A discrete update, like the live device's receiver: the inverse kinematics' update
+        # at the same instant reads the console's state of the tick before (Drake's x⁻), and
+        # so does a logger: the hand logged at t is the hand the IK read at t.
+        self.DeclarePeriodicDiscreteUpdateEvent(params.period_s, 0.0, self._update)
 
         def output(port, field):
             part = self._codec.field_slice(field)
@@ -193,13 +196,13 @@ class OperatorConsole(LeafSystem):
             return None
         return np.asarray(self._fk(self._q_anchor_input.Eval(context)), dtype=float)
 
-    def _update(self, context, state) -> None:
+    def _update(self, context, discrete_state) -> None:
         current = self.console_state(context)
         inputs = self._controls.read(anchor_pose=self._anchor_pose(context))
         new, outputs = console_step(self._params, current, inputs)
         if outputs.set_sliders is not None:
             self._controls.set_sliders(outputs.set_sliders)
-        state.get_mutable_discrete_state(self._state).SetFromVector(self._codec.pack(new))
+        discrete_state.get_mutable_vector(self._state).SetFromVector(self._codec.pack(new))
 
     @staticmethod
     def notice_text(value: float) -> str:
