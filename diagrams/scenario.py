@@ -400,6 +400,106 @@ def initial_position(scenario: Scenario, recording: HapticRecording | None) -> n
     return planar_joints_to_space_arm(q) if scenario.arm == "space_arm" else q
 
 
+HAPTIC_KEY_SOURCES: dict[str, tuple[str, ...]] = {
+    "lasa_shape": ("lasa",),
+    "lasa_demo": ("lasa",),
+    "lasa_mapping": ("lasa",),
+    "synthetic": ("synthetic",),
+    "file": ("file",),
+    "live_initial_pose": ("lcm",),
+    "live_duration_s": ("lcm",),
+}
+"""The keys of ``haptic`` that only some sources read → the sources that read them (every
+other key of ``haptic`` is read by every source). A new source adds itself to the keys it
+reads; :func:`check_ignored_keys` refuses the others under it."""
+
+_CONTINUOUS = (lambda step: step == 0.0, "= 0, the continuous plant")
+_DISCRETE = (lambda step: step > 0.0, "> 0, a discrete plant")
+
+_KEYS_READ_ONLY_WHEN: tuple[tuple[str, str | None, object], ...] = (
+    # (key path, the setting that decides whether it is read, the setting's values that read
+    # it: a tuple of names, or (test, how the message says it)); setting None: no setting
+    # of a scenario reads the key (the third entry says what sets it instead).
+    *((f"haptic.{key}", "haptic.source", sources)
+      for key, sources in HAPTIC_KEY_SOURCES.items()),
+    ("haptic.lasa_mapping.haptic_rate_hz", None, "the rate is 1 / haptic.period_s"),
+    ("haptic.synthetic.haptic_rate_hz", None, "the rate is 1 / haptic.period_s"),
+    ("inverse_kinematics.max_iterations", "arm", ("space_arm",)),   # the planar IK is exact
+    ("fifo.max_stop_duration_s", "fifo.on_collision", ("stop",)),
+    ("smoother.reduced_q.rho", "smoother.reduced_q.step_rule", ("multiplicative",)),
+    ("smoother.reduced_q.delta_sigma", "smoother.reduced_q.step_rule", ("additive",)),
+    ("smoother.reduced_q.max_retries", "smoother.reduced_q.variant", ("B1", "B2")),
+    ("onboard.arm", None, "the top-level arm sets it"),
+    ("onboard.initial_position_rad", None,
+     "the robot starts at initial_position_rad, else at the IK of the first pose"),
+    ("onboard.integration_scheme", "onboard.time_step_s", _CONTINUOUS),
+    ("onboard.integration_accuracy", "onboard.time_step_s", _CONTINUOUS),
+    ("onboard.discrete_contact_approximation", "onboard.time_step_s", _DISCRETE),
+    ("onboard.interpolator.ramp_duration_s", "onboard.interpolator.interpolation",
+     ("linear",)),
+    ("onboard.tracker.seed", "onboard.tracker.noise_m",
+     (lambda noise: noise > 0.0, "> 0, a noisy tracker")),
+)
+
+_SET_ON_THE_COMMAND_LINE = {"fifo.on_collision": "--on-collision",
+                            "onboard.time_step_s": "experiment --plant-step"}
+"""Settings that a command-line option may still change after the scenario is loaded: a
+rule they decide applies only where the scenario writes the setting itself (a key given for
+``--on-collision stop`` is not refused because the scenario leaves the default 'hold')."""
+
+
+def _written(data, path: str):
+    """(True, value) if the mapping ``data`` gives the dotted ``path``, else (False, None)."""
+    node = data
+    for part in path.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            return False, None
+        node = node[part]
+    return True, node
+
+
+def check_ignored_keys(data: Mapping, scenario: Scenario) -> None:
+    """Refuses a key that the scenario's own settings leave unread.
+
+    Some keys are read only under some value of another setting (``haptic.file`` only when
+    ``haptic.source = 'file'``, ``onboard.integration_accuracy`` only for the continuous
+    plant, ...; the table ``_KEYS_READ_ONLY_WHEN``), and a few never (the top-level ``arm``
+    sets ``onboard.arm``). Given anyway, such a key would be silently ignored: the run would
+    not be the one the user wrote. Whether a key was *given* can only be seen in ``data``,
+    the mapping as the user wrote it (the scenario file's entry with ``--scenario-text``
+    merged in, before defaults), since a dataclass cannot tell a default from a value the
+    user gave; the deciding setting is read from ``scenario``, built from ``data`` (so
+    validated, its default filled in). A key written as null is taken as not given.
+
+    Raises:
+        ValueError: naming the key path as written, its value, and the setting that leaves it
+            unread with that setting's value, e.g. ``haptic.file = 'my.csv' is only read when
+            haptic.source = 'file' (haptic.source is 'lasa', the default)``.
+    """
+    for key, setting, readers in _KEYS_READ_ONLY_WHEN:
+        given, value = _written(data, key)
+        if not given or value is None:
+            continue
+        if setting is None:
+            raise ValueError(f"{key} = {quote(value)} is not read in a scenario: {readers}")
+        setting_written, _ = _written(data, setting)
+        if setting in _SET_ON_THE_COMMAND_LINE and not setting_written:
+            continue
+        current = scenario
+        for part in setting.split("."):
+            current = getattr(current, part)
+        if isinstance(readers, tuple) and callable(readers[0]):
+            test, when = readers
+            reads = test(current)
+        else:
+            reads = current in readers
+            when = "= " + " or ".join(repr(name) for name in readers)
+        if not reads:
+            default = "" if setting_written else ", the default"
+            raise ValueError(f"{key} = {quote(value)} is only read when {setting} {when} "
+                             f"({setting} is {current!r}{default})")
+
+
 def load_scenario(*, filename=None, scenario_name: str | None = None,
                   scenario_text: str | None = None,
                   option_names: Mapping[str, str] | None = None) -> Scenario:
@@ -449,6 +549,8 @@ def load_scenario(*, filename=None, scenario_name: str | None = None,
         data = merge_data(data, load_yaml_text(scenario_text, source=names["scenario_text"]))
         where += f" with {names['scenario_text']}"
     try:
-        return config_from_data(Scenario, data, path="")
+        scenario = config_from_data(Scenario, data, path="")
+        check_ignored_keys(data, scenario)
+        return scenario
     except ValueError as error:
         raise ValueError(f"{where}: {error}") from None
