@@ -123,7 +123,10 @@ def _add_smooth_parser(subparsers) -> None:
         help="smooth a joint trajectory CSV (t,<joints…>; s, rad; uniform step)",
         description="Smooth an operator's joint trajectory so that acceleration and jerk stay "
         "within the robot's limits. Limits take one value for all joints, a comma list "
-        "(one per joint, in column order) or name=value pairs.",
+        "(one per joint, in column order) or name=value pairs. Prints a summary to stderr: "
+        "per joint the FD acceleration and jerk max/limit and share of samples over (velocity "
+        "too with --vel-max), whether the limits are met, the deformation |Δq| (mean / max, "
+        "mrad) and the worst ratios.",
     )
     p.add_argument("input", type=Path, help="input CSV: header t,<joint names…>")
     p.add_argument("-o", "--output", type=Path, required=True, help="output CSV")
@@ -204,8 +207,9 @@ def run_smooth(args) -> int:
         names = list(trajectory.joint_names)
         write_joint_csv(output, trajectory.t_s, result.positions, names,
                         extra_columns={"sent_t": trajectory.t_s + result.sent_delay_s})
+        metrics = _smooth_metrics(args, trajectory, result, settings, extra)
+        summary = smooth_summary(metrics)
         if metrics_path is not None:
-            metrics = _smooth_metrics(args, trajectory, result, settings, extra)
             from telesmooth.atomic_files import write_text
 
             write_text(metrics_path, json.dumps(metrics, indent=2) + "\n")
@@ -214,6 +218,8 @@ def run_smooth(args) -> int:
                                 destination=store_path)
         elif store_path is not None:     # nothing to store: keep the file as it is
             outputs.drop(store_path)
+    for line in summary:
+        print(line, file=sys.stderr)
     print(f"wrote {args.output} ({len(trajectory.t_s)} samples, method {args.method})",
           file=sys.stderr)
     if args.metrics is not None:
@@ -289,6 +295,79 @@ def _smooth_metrics(args, trajectory, result, settings, link_lengths) -> dict:
     if result.final_sigma is not None:
         metrics["final_sigma"] = result.final_sigma.tolist()
     return metrics
+
+
+_SUMMARY_LIMITS = (("acc", "fd_acceleration", "FD acceleration"),
+                   ("jerk", "fd_jerk", "FD jerk"),
+                   ("vel", "fd_velocity", "FD velocity"))
+"""The limits the ``smooth`` summary reports: (column word, metrics key, name); velocity only
+when ``--vel-max`` is given."""
+
+
+def _share(fraction: float) -> str:
+    """A share of samples in %, never rounded to 0.0 % when some sample is over."""
+    percent = 100.0 * fraction
+    if 0.0 < percent < 0.05:
+        return "<0.1 %"
+    return f"{percent:.1f} %"
+
+
+def smooth_summary(metrics: dict) -> list[str]:
+    """What ``smooth`` prints before its "wrote" lines: per joint whether the FD limits are met
+    (max/limit with :func:`~telesmooth.scripts.formatting.limit_ratio`, the share of samples
+    over), the deformation |Δq| (mean and max, mrad), and the worst ratio of each limit.
+
+    Args:
+        metrics: :func:`~telesmooth.smoothing.metrics.smoothing_metrics` of the run.
+
+    Returns:
+        A few lines: a headline, a small aligned table (one row per joint) and the worst
+        ratios. A limit with no finite difference to measure (too few samples) reads n/a.
+    """
+    from telesmooth.scripts.formatting import limit_ratio
+    from telesmooth.smoothing.metrics import VIOLATION_RTOL
+
+    names = metrics["joint_names"]
+    limits = [entry for entry in _SUMMARY_LIMITS if entry[1] in metrics]
+    header = ["joint"]
+    for word, _, _ in limits:
+        header += [f"{word} max/limit", f"{word} over"]
+    header += ["|Δq| mean / max [mrad]", "limits"]
+    rows = []
+    met = 0
+    for j, name in enumerate(names):
+        row, over = [name], []
+        for word, key, _ in limits:
+            stats = metrics[key]
+            if stats["num_samples"] == 0:
+                row += ["n/a", "n/a"]
+                continue
+            ratio = stats["max_over_limit"][j]
+            row += [limit_ratio(ratio), _share(stats["fraction_over_limit"][j])]
+            if ratio > 1.0 + VIOLATION_RTOL:
+                over.append(word)
+        deformation = metrics["position_deformation_rad"]
+        row.append(f"{1e3 * deformation['mean'][j]:.2f} / {1e3 * deformation['max'][j]:.2f}")
+        row.append("over: " + ", ".join(over) if over else "met")
+        met += not over
+        rows.append(row)
+    widths = [max(len(line[c]) for line in [header, *rows]) for c in range(len(header))]
+
+    def aligned(cells):
+        text = [cells[0].ljust(widths[0])]
+        text += [cell.rjust(width) for cell, width in zip(cells[1:-1], widths[1:-1])]
+        return "  ".join(text + [cells[-1]]).rstrip()
+
+    worst = []
+    for _, key, label in limits:
+        stats = metrics[key]
+        if stats["num_samples"]:
+            j = max(range(len(names)), key=lambda i: stats["max_over_limit"][i])
+            worst.append(f"{label} {limit_ratio(stats['max_over_limit'][j])} ({names[j]})")
+    return [f"{metrics['method']}: {metrics['num_samples']} samples at Δt = "
+            f"{metrics['dt_s']:g} s; the FD limits are met on {met} of {len(names)} joint(s)",
+            aligned(header), *(aligned(row) for row in rows),
+            "worst max/limit: " + (", ".join(worst) if worst else "n/a")]
 
 
 def _add_demo_parser(subparsers) -> None:
