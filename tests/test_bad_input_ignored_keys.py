@@ -238,3 +238,13 @@ def test_the_cli_names_a_key_from_a_scenario_file(tmp_path, monkeypatch, capsys)
                           "onboard.integration_accuracy = 0.0001 is only read when "
                           "onboard.time_step_s = 0", "(onboard.time_step_s is 0.005)")
     assert snapshot(tmp_path) == before
+
+
+def test_the_docs_list_every_key_of_the_table():
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parent.parent / "docs" / "commands.md").read_text()
+    start = text.index("\n## Scenarios")
+    section = text[start:text.index("\n## ", start + 1)]
+    for key, _, _ in _KEYS_READ_ONLY_WHEN:
+        assert f"`{key}`" in section, key
