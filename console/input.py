@@ -8,8 +8,9 @@ sent to the ground station, with these rules (no motion without intent):
 
 * **The clutch.** The console starts disengaged. Each click of Enable toggles it (a gamepad's
   button 0 too). While it is disengaged the published pose does not move, whatever the
-  sliders do; engaging again puts the sliders back on the published pose (the console asks
-  for that with ``set_sliders``), so the hand continues from where it stopped: no jump.
+  sliders do; engaging again puts the sliders back on the published pose if they moved
+  meanwhile (the console asks for that with ``set_sliders``), so the hand continues from
+  where it stopped: no jump.
 * **The stop.** A click of Stop (or the gamepad's button 1) disengages the clutch and sets
   ``stop`` until the operator engages again; the ground brings the robot to rest within the
   limits while ``stop`` is set. Engaging after a stop re-anchors the hand at the robot's
@@ -93,6 +94,10 @@ class ConsoleParams:
         gamepad_deadzone: Stick deflections below this are none, in [0, 1).
         saturate: (pose) → (pose within the arm's reach, whether it had to move); None
             accepts every pose.
+        slider_steps: The page's slider step of each coordinate (the page keeps a slider on
+            a whole number of steps), or None (no quantisation). A slider reading that moves
+            less than half a step is not a change, and the gamepad moves the sliders only
+            when the wanted pose reaches the next step.
     """
 
     pose_names: tuple[str, ...]
@@ -101,6 +106,21 @@ class ConsoleParams:
     max_angular_speed_rad_per_s: float = 0.2
     gamepad_deadzone: float = 0.1
     saturate: Callable[[np.ndarray], tuple[np.ndarray, bool]] | None = None
+    slider_steps: tuple[float, ...] | None = None
+
+    def quantize(self, values) -> np.ndarray:
+        """``values`` on the sliders' steps (unchanged without steps)."""
+        values = np.array(values, dtype=float)
+        if self.slider_steps is None:
+            return values
+        steps = np.asarray(self.slider_steps, dtype=float)
+        return np.round(values / steps) * steps
+
+    def sliders_moved(self, read, held) -> bool:
+        """Whether the sliders ``read`` differ from those ``held`` by half a step or more."""
+        steps = (np.full(len(self.pose_names), 2e-9) if self.slider_steps is None
+                 else np.asarray(self.slider_steps, dtype=float))
+        return bool(np.any(np.abs(np.asarray(read) - np.asarray(held)) >= 0.5 * steps))
 
     @property
     def angular(self) -> np.ndarray:
@@ -124,6 +144,12 @@ def console_params(pose_names, **settings) -> ConsoleParams:
         raise ValueError(f"gamepad_deadzone = {zone!r} must be in [0, 1)")
     if params.saturate is not None and not callable(params.saturate):
         raise ValueError(f"saturate = {params.saturate!r} must be None or callable")
+    if params.slider_steps is not None:
+        steps = tuple(float(v) for v in params.slider_steps)
+        if len(steps) != len(names) or not all(math.isfinite(v) and v > 0 for v in steps):
+            raise ValueError(f"slider_steps = {params.slider_steps!r} must be "
+                             f"{len(names)} positive numbers")
+        params = dataclasses.replace(params, slider_steps=steps)
     return params
 
 
@@ -299,8 +325,13 @@ def console_step(params: ConsoleParams, state: ConsoleState,
                 if anchor.shape == pose.shape and np.all(np.isfinite(anchor)):
                     pose = anchor   # resume where the robot stopped
             stop = False
-            # The hand continues from the published pose: the sliders go back on it.
-            wanted, set_sliders, sliders = pose.copy(), pose.copy(), pose.copy()
+            # The hand continues from the published pose: the sliders go back on it (if they
+            # moved while disengaged; otherwise they are left alone, so that a key already
+            # pressed is not undone).
+            wanted = pose.copy()
+            if params.sliders_moved(sliders, params.quantize(pose)):
+                set_sliders = pose.copy()
+            sliders = state.sliders if set_sliders is None else params.quantize(pose)
     # Losing the operator releases the clutch (the stop, if any, stays in force).
     if inputs.connections <= 0 and enabled:
         enabled, notice = False, ConsoleNotice.NO_BROWSER
@@ -308,23 +339,30 @@ def console_step(params: ConsoleParams, state: ConsoleState,
         enabled, notice = False, ConsoleNotice.GAMEPAD_LOST
 
     saturated = state.saturated
-    if enabled:
-        changed = not np.array_equal(sliders, state.sliders) and set_sliders is None
+    held = state.sliders      # where the sliders are, as far as the console knows
+    if set_sliders is not None:
+        held = params.quantize(set_sliders)
+    elif enabled:
+        changed = params.sliders_moved(sliders, state.sliders)
         if changed:
-            wanted = sliders.copy()
+            wanted, held = sliders.copy(), sliders.copy()
         rate = _gamepad_rate(params, gamepad) if gamepad.index is not None else None
-        if rate is not None and np.any(rate != 0.0):
+        moving = rate is not None and bool(np.any(rate != 0.0))
+        if moving:
             wanted = wanted + rate * params.period_s
-            set_sliders = wanted.copy()
-        if params.saturate is not None and (changed or set_sliders is not None):
+        if params.saturate is not None and (changed or moving):
             wanted, saturated = params.saturate(wanted)
             wanted = np.array(wanted, dtype=float)
-            if saturated:
-                set_sliders = wanted.copy()
+        # The sliders follow the wanted pose when it moved by other means (the gamepad, the
+        # reach), a step at a time.
+        if (moving or saturated) and params.sliders_moved(params.quantize(wanted), held):
+            set_sliders = wanted.copy()
+            held = params.quantize(wanted)
+    if enabled:
         pose = _move_towards(params, pose, wanted)
     new_state = ConsoleState(
         pose=np.array(pose, dtype=float), wanted=np.array(wanted, dtype=float),
-        sliders=sliders if set_sliders is None else np.array(set_sliders, dtype=float),
+        sliders=np.array(held, dtype=float),
         enabled=enabled, stop=stop,
         enable_clicks=max(state.enable_clicks, int(inputs.enable_clicks)),
         stop_clicks=max(state.stop_clicks, int(inputs.stop_clicks)),

@@ -77,7 +77,9 @@ __all__ = [
     "make_haptic_recording",
 ]
 
-HAPTIC_SOURCES = ("lasa", "synthetic", "file", "lcm")
+HAPTIC_SOURCES = ("lasa", "synthetic", "file", "lcm", "console")
+LIVE_HAPTIC_SOURCES = ("lcm", "console")
+"""The sources of a live operator (no recording): a device over LCM, the browser console."""
 BUILTIN_SCENARIOS_FILE = pathlib.Path(__file__).resolve().parent / "scenarios.yaml"
 
 
@@ -87,7 +89,8 @@ class HapticScenario:
 
     Attributes:
         source: ``"lasa"`` (a LASA demonstration), ``"synthetic"`` (the synthetic operator),
-            ``"file"`` (a CSV or NPZ recording), or ``"lcm"`` (a live device publishing on
+            ``"file"`` (a CSV or NPZ recording), ``"console"`` (the browser console of
+            ``telesmooth teleop``, which sets it), or ``"lcm"`` (a live device publishing on
             TELEOP_HAPTIC_COMMAND; ground process only).
         lasa_shape, lasa_demo: The LASA demonstration.
         lasa_mapping: Its placement in the plane and in time.
@@ -324,6 +327,8 @@ def describe_operator(scenario: Scenario) -> str:
         return f"the synthetic operator (seed {haptic.synthetic.seed})"
     if haptic.source == "file":
         return f"the recording `{haptic.file}`"
+    if haptic.source == "console":
+        return "the operator at the browser console"
     return "a live haptic device over LCM"
 
 
@@ -341,13 +346,14 @@ def describe_chain(scenario: Scenario) -> str:
 
 
 def make_haptic_recording(scenario: Scenario) -> HapticRecording | None:
-    """The operator recording of ``scenario`` in the arm's pose convention (None for 'lcm').
+    """The operator recording of ``scenario`` in the arm's pose convention (None for a live
+    operator: ``lcm``, ``console``).
 
     Planar recordings are lifted into the 6-DOF arm's air-bearing plane when the arm is
     ``space_arm``.
     """
     haptic = scenario.haptic
-    if haptic.source == "lcm":
+    if haptic.source in LIVE_HAPTIC_SOURCES:
         return None
     if haptic.source == "lasa":
         recording = lasa_haptic_recording(haptic.lasa_shape, haptic.lasa_demo,
@@ -406,8 +412,8 @@ HAPTIC_KEY_SOURCES: dict[str, tuple[str, ...]] = {
     "lasa_mapping": ("lasa",),
     "synthetic": ("synthetic",),
     "file": ("file",),
-    "live_initial_pose": ("lcm",),
-    "live_duration_s": ("lcm",),
+    "live_initial_pose": LIVE_HAPTIC_SOURCES,
+    "live_duration_s": LIVE_HAPTIC_SOURCES,
 }
 """The keys of ``haptic`` that only some sources read → the sources that read them (every
 other key of ``haptic`` is read by every source). A new source adds itself to the keys it
@@ -502,7 +508,8 @@ def check_ignored_keys(data: Mapping, scenario: Scenario) -> None:
 
 def load_scenario(*, filename=None, scenario_name: str | None = None,
                   scenario_text: str | None = None,
-                  option_names: Mapping[str, str] | None = None) -> Scenario:
+                  option_names: Mapping[str, str] | None = None,
+                  overrides: Mapping | None = None) -> Scenario:
     """Loads a scenario: file (a mapping of names to scenarios) → named entry → text overrides.
 
     Args:
@@ -512,6 +519,8 @@ def load_scenario(*, filename=None, scenario_name: str | None = None,
         option_names: How the caller's user spells ``filename``, ``scenario_name`` and
             ``scenario_text`` (e.g. ``{"filename": "--scenario"}`` on the command line), for
             messages; default the argument names.
+        overrides: A mapping merged last, what the caller itself sets (e.g. ``teleop``'s
+            live operator: ``{"haptic": {"source": "console"}}``).
 
     Raises:
         ValueError: the file cannot be read within the bounds of
@@ -548,6 +557,8 @@ def load_scenario(*, filename=None, scenario_name: str | None = None,
     if scenario_text:
         data = merge_data(data, load_yaml_text(scenario_text, source=names["scenario_text"]))
         where += f" with {names['scenario_text']}"
+    if overrides:
+        data = merge_data(data, overrides)
     try:
         scenario = config_from_data(Scenario, data, path="")
         check_ignored_keys(data, scenario)

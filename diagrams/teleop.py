@@ -168,6 +168,11 @@ def MakeTeleopDiagram(scenario: Scenario, *, console=None, display=None,
                                         haptic_period)
     logs["hand_enable"] = LogVectorOutput(ground.haptic.get_enable_output_port(), builder,
                                           haptic_period)
+    if console is not None:
+        # The console's own state, for the session's console.csv.
+        for name in ("stop_requested", "notice", "saturated"):
+            logs[f"console_{name}"] = LogVectorOutput(console.GetOutputPort(name), builder,
+                                                      haptic_period)
     # What the display shows of the prediction, at the display's rate.
     for name in ("q_predicted", "residual", "telemetry_silence", "telemetry_age"):
         logs[f"predictor_{name}"] = LogVectorOutput(predictor.get_output(name), builder,

@@ -169,6 +169,9 @@ def AddOperatorTargets(builder: DiagramBuilder, scenario: Scenario, *, recording
         haptic = builder.AddNamedSystem("haptic_source", HapticSource(
             recording, HapticSourceConfig(period_s=scenario.haptic.period_s)))
     else:
+        if scenario.haptic.source == "console":
+            raise ValueError("haptic.source = 'console' is the browser console of "
+                             "`telesmooth teleop` and `telesmooth operator`: run one of them")
         if lcm is None:
             raise ValueError("haptic.source = 'lcm' needs an LCM instance (ground process)")
         # A subscriber that survives malformed packets (they count as rejected messages).

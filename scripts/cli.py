@@ -469,22 +469,22 @@ def _check_run_length(scenario, duration_s, *, uses_duration: bool = True) -> No
     _check_at_most("settle_s", scenario.settle_s, MAX_SIMULATED_S)
 
 
-def _load_scenario(args):
-    import dataclasses
-
+def _load_scenario(args, overrides=None):
+    """The scenario of the scenario options; ``--on-collision`` and ``--chain`` (and the
+    caller's ``overrides``) are merged into it before it is built and checked, so a key they
+    make unread is refused like any other."""
     from telesmooth.diagrams.scenario import load_scenario
+    from telesmooth.typed_yaml import merge_data
 
-    scenario = load_scenario(filename=args.scenario, scenario_name=args.scenario_name,
-                             scenario_text=args.scenario_text, option_names=_SCENARIO_OPTIONS)
+    options = {}
     if getattr(args, "on_collision", None) is not None:
-        scenario = dataclasses.replace(scenario, fifo=dataclasses.replace(
-            scenario.fifo, on_collision=args.on_collision))
+        options["fifo"] = {"on_collision": args.on_collision}
     if getattr(args, "chain", None) is not None:
-        try:
-            scenario = dataclasses.replace(scenario, chain=args.chain)
-        except ValueError as error:    # e.g. link faults with the paper's chain
-            raise ValueError(f"--chain {args.chain}: {error}") from None
-    return scenario
+        options["chain"] = args.chain
+    options = merge_data(options, overrides or {})
+    return load_scenario(filename=args.scenario, scenario_name=args.scenario_name,
+                         scenario_text=args.scenario_text, option_names=_SCENARIO_OPTIONS,
+                         overrides=options or None)
 
 
 def _add_simulate_parser(subparsers) -> None:
@@ -558,7 +558,10 @@ def _add_teleop_parser(subparsers) -> None:
 def run_teleop_command(args) -> int:
     from telesmooth.scripts.teleop import run_teleop
 
-    scenario = _load_scenario(args)
+    # The browser console is the operator: a live one (haptic.live_initial_pose is where the
+    # hand starts), and the deployed chain.
+    scenario = _load_scenario(args, overrides={"haptic": {"source": "console"},
+                                               "chain": "deployed"})
     if args.duration is not None:
         _check_finite("--duration", args.duration)
         _check_at_most("--duration", args.duration, MAX_PROCESS_RUN_S)

@@ -32,11 +32,10 @@ def _log(message: str) -> None:
 
 
 def console_scenario(scenario):
-    """The scenario as the live console drives it: a live operator (``haptic.source =
-    "lcm"``: the hand starts at ``haptic.live_initial_pose``), the deployed chain, and a
-    collision or the operator's Stop brakes within the limits (``fifo.on_collision =
-    "stop"``) unless the scenario says ``hold``."""
-    haptic = dataclasses.replace(scenario.haptic, source="lcm")
+    """The scenario as the live console drives it: the operator at the browser console
+    (``haptic.source = "console"``: the hand starts at ``haptic.live_initial_pose``) and the
+    deployed chain."""
+    haptic = dataclasses.replace(scenario.haptic, source="console")
     return dataclasses.replace(scenario, haptic=haptic, chain="deployed")
 
 
@@ -89,10 +88,11 @@ def build_teleop(scenario, meshcat, *, monitor=None):
     arm = scenario.arm_description
     names = console_pose_names(scenario)
     pose0 = _initial_pose(scenario)
-    params = console_params(names, period_s=scenario.haptic.period_s,
-                            saturate=reach_saturation(scenario.arm))
     controls = MeshcatControls(meshcat, names, initial_pose=pose0,
                                position_range_m=_slider_ranges(scenario))
+    params = console_params(names, period_s=scenario.haptic.period_s,
+                            saturate=reach_saturation(scenario.arm),
+                            slider_steps=controls.slider_steps)
     fk_holder = {}
     console = OperatorConsole(params, controls, initial_pose=pose0,
                               forward_kinematics=lambda q: fk_holder["ik"]

@@ -4,6 +4,8 @@ report (``telesmooth teleop --out DIR``).
     operator.npz, operator.csv   the hand the ground received, 100 Hz: the haptic recording
                                  format (``t,<pose>,enable``) that ``simulate``'s ``file``
                                  source reads; replaying it sends the same commands
+    console.csv                  the console at the haptic rate: clutch, stop, why the
+                                 console released the clutch (no browser, gamepad lost)
     predicted.csv                every measured prediction: the instant, how far ahead of
                                  its telemetry it ran, predicted and measured tool position,
                                  the residual
@@ -62,6 +64,23 @@ def operator_recording(handles, context):
     enable = handles.logs["hand_enable"].FindLog(context).data()[0] > 0.5
     return HapticRecording(t_s=pose_log.sample_times().copy(), pose=pose_log.data().T.copy(),
                            enable=enable, pose_names=console_pose_names(handles.scenario))
+
+
+def _write_console_csv(path: Path, handles, context) -> None:
+    """console.csv: the console at the haptic rate, as the ground read it (the row at t is
+    the tick before t, like operator.csv): the clutch, the stop, why the console released
+    the clutch (``notice``: none, stopped, no-browser, gamepad-lost) and whether the hand
+    was held at the edge of the reach."""
+    from telesmooth.console.input import ConsoleNotice
+
+    logs = handles.logs
+    enable_log = logs["hand_enable"].FindLog(context)
+    columns = [enable_log.data()[0]] + [logs[f"console_{name}"].FindLog(context).data()[0]
+                                        for name in ("stop_requested", "notice", "saturated")]
+    _write_csv(path, ["t", "enable", "stop", "notice", "saturated"],
+               ([float(t), int(e > 0.5), int(s > 0.5),
+                 ConsoleNotice(int(round(n))).name.lower().replace("_", "-"), int(a > 0.5)]
+                for t, e, s, n, a in zip(enable_log.sample_times(), *columns)))
 
 
 def _residual_figure(out: Path, residuals, warning_m: float) -> list[tuple[str, str]]:
@@ -151,6 +170,8 @@ def write_teleop_report(out: Path, handles, context, *, monitor=None) -> Path:
     recording = operator_recording(handles, context)
     write_haptic_npz(out / "operator.npz", recording)
     write_haptic_csv(out / "operator.csv", recording)
+    if "console_notice" in handles.logs:
+        _write_console_csv(out / "console.csv", handles, context)
     residuals = handles.predictor.residuals
     _write_csv(out / "predicted.csv",
                ["t", "horizon_s", "predicted_x", "predicted_y", "predicted_z", "measured_x",

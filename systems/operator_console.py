@@ -64,6 +64,9 @@ class MeshcatControls:
                  position_step_m: float = 0.005, angle_step_rad: float = 0.02):
         self._meshcat = meshcat
         self._names = tuple(pose_names)
+        self.slider_steps = tuple(angle_step_rad if name.endswith("_rad") else position_step_m
+                                  for name in self._names)
+        """The sliders' steps (the page keeps each slider on a whole number of them)."""
         pose = np.asarray(initial_pose, dtype=float)
         meshcat.AddButton(ENABLE_BUTTON, "Space")
         meshcat.AddButton(STOP_BUTTON, "Escape")

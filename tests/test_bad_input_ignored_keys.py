@@ -192,7 +192,7 @@ def test_a_null_key_counts_as_not_given():
 def test_an_invalid_deciding_value_is_reported_as_such_not_as_an_unread_key():
     with pytest.raises(ValueError) as error:
         load_scenario(scenario_text="{haptic: {source: fil, file: my.csv}}")
-    assert "haptic.source = 'fil' is not one of the 4 haptic sources" in str(error.value)
+    assert "haptic.source = 'fil' is not one of the 5 haptic sources" in str(error.value)
     assert "only read" not in str(error.value)
 
 

@@ -44,7 +44,7 @@ def test_anchors_aliases_and_merge_keys_still_work():
                                       "shapes; did you mean 'Sshape'"),
     ("{haptic: {source: synthetic, period_s: -1}}", "haptic.period_s = -1.0"),
     ("{haptic: {lasa_demo: 9}}", "haptic.lasa_demo = 9 is out of range"),
-    ("{haptic: {source: usb}}", "haptic.source = 'usb' is not one of the 4 haptic sources"),
+    ("{haptic: {source: usb}}", "haptic.source = 'usb' is not one of the 5 haptic sources"),
     ("{haptic: {lasa_mapping: {haptic_rate_hz: -5}}}",
      "haptic.lasa_mapping.haptic_rate_hz = -5.0"),
     ("{fifo: {period_s: 0}, smoother: {period_s: 0}, uplink: {period_s: 0}}",
