@@ -245,7 +245,9 @@ def ground_record(handles, context, *, wall_time_s: float):
         onboard_t = values[:, layout["utime_s"]][:, 0]
         offset = float(np.min(arrival - onboard_t))
         t = onboard_t + offset
-        tracker = dict(tracker_t_s=t, q_link=values[:, layout["q_link"]],
+        # The robot publishes each sample publish_offset_s after its tracker took it.
+        tracker = dict(tracker_t_s=t - scenario.publish_offset_s,
+                       q_link=values[:, layout["q_link"]],
                        q_motor=values[:, layout["q_motor"]],
                        tool_position_m=values[:, layout["tool_position"]])
         # When the robot began to move towards each packet: the first message that names

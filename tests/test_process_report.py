@@ -119,11 +119,6 @@ def test_the_telemetry_clock_mapping_on_a_fabricated_log(monkeypatch):
     assert record.guard is None and record.duration_s == 0.8
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: ground_record dates each telemetry sample at the message's publish instant (utime), "
-    "but the robot's tracker took it publish_offset_s earlier (the tracker samples at whole "
-    "periods, the telemetry is published publish_offset_s after), while the ramp starts are "
-    "dated at utime − publish_offset_s: the samples are 1 ms late against the ramps"))
 def test_the_samples_are_dated_when_the_tracker_took_them(monkeypatch):
     # Catches a mapping in which the telemetry's samples and the ramp starts read from the
     # same messages disagree by the publish offset.
@@ -236,11 +231,6 @@ def test_the_ground_record_maps_the_robots_clock_within_a_telemetry_period(two_s
     assert np.unique(onboard_tracker[0]).size >= record.tracker_t_s.size
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG (see test_the_samples_are_dated_when_the_tracker_took_them): the ground reads the "
-    "robot's response 1 ms off the ramp it estimates: mean response error 0.0173 mm here "
-    "against the robot's own 0.0122 mm (equal to the last digit once the samples are dated "
-    "1 ms earlier)"))
 def test_the_ground_reads_the_same_response_error_as_the_robot(two_sides):
     # Catches: any inconsistency between the ground's ramp starts and its samples: on one
     # clock, with the same packets and the same robot, the ground must read the response the
