@@ -97,7 +97,10 @@ def status_lines(s: StatusInputs) -> list[str]:
     if s.ik_failure:
         presim += f"; IK: {s.ik_failure.upper()} (target held)"
     lines.append(f"{fifo}; {presim}")
-    lines.append(f"σ [rad²/s⁷]: {_numbers(s.sigma, '.1e')}")
+    if np.all(np.isfinite(s.sigma)):
+        lines.append(f"σ [rad²/s⁷]: {_numbers(s.sigma, '.1e')}")
+    else:
+        lines.append("σ: not sent on the bus (the ground's report has it)")
     over = bool(np.any(s.acceleration_ratio > 1.0) or np.any(s.jerk_ratio > 1.0))
     lines.append(f"sent acc/limit {_numbers(s.acceleration_ratio, '.2f')}, jerk/limit "
                  f"{_numbers(s.jerk_ratio, '.2f')}" + (" (OVER: the robot's guard cuts)"

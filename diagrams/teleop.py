@@ -42,8 +42,8 @@ from telesmooth.systems.link_channel import LinkChannel
 from telesmooth.systems.packet_replay import PacketLog, PacketReplay
 from telesmooth.systems.robot_predictor import PredictorReplica, RobotPredictor
 
-__all__ = ["MakePredictorReplica", "MakeTeleopDiagram", "TeleopHandles", "console_pose_names",
-           "model_scenario"]
+__all__ = ["MakeOperatorDiagram", "MakePredictorReplica", "MakeTeleopDiagram", "OperatorHandles",
+           "TeleopHandles", "console_pose_names", "model_scenario"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,11 +140,13 @@ def MakeTeleopDiagram(scenario: Scenario, *, console=None, display=None,
         scenario.link.downlink, lcm_type=lcmt_onboard_joint_status,
         poll_period_s=tracker_period, poll_offset_s=scenario.publish_offset_s))
     builder.Connect(status.get_lcm_message_output_port(), downlink.get_lcm_message_input_port())
-    replica = MakePredictorReplica(scenario, initial_position_rad=q0,
-                                   collision_model=ground.collision_checker.collision_model)
+    collision_model = ground.collision_checker.collision_model
     predictor = builder.AddNamedSystem("robot_predictor", RobotPredictor(
-        replica, num_joints=n, period_s=scenario.predictor.period_s,
-        resync_period_s=scenario.predictor.resync_period_s, initial_position_rad=q0))
+        lambda start: MakePredictorReplica(scenario, initial_position_rad=start,
+                                           collision_model=collision_model),
+        num_joints=n, period_s=scenario.predictor.period_s,
+        resync_period_s=scenario.predictor.resync_period_s, initial_position_rad=q0,
+        sample_period_s=tracker_period))
     builder.Connect(sender.get_lcm_message_output_port(),
                     predictor.get_uplink_message_input_port())
     builder.Connect(downlink.get_packets_output_port(),
@@ -184,3 +186,137 @@ def MakeTeleopDiagram(scenario: Scenario, *, console=None, display=None,
         onboard=OnboardHandles(arm=robot, receiver=receiver, guard=guard, link=link),
         predictor=predictor, downlink=downlink, logs=logs, scenario=scenario,
         console=console, display=display)
+
+
+@dataclasses.dataclass(frozen=True)
+class OperatorHandles:
+    """The operator's own process (``telesmooth operator``): its systems and loggers."""
+
+    diagram: object
+    console: object
+    inverse_kinematics: object
+    predictor: RobotPredictor
+    logs: dict
+    scenario: Scenario
+    display: object | None = None
+
+
+def MakeOperatorDiagram(scenario: Scenario, *, lcm, console, display=None,
+                        monitor=None) -> OperatorHandles:
+    """The console alone, on the bus (docs/operator.md: operator, ground and onboard as three
+    processes):
+
+    * the operator's hand (``console``) → ``lcmt_teleop_haptic_command`` on
+      TELEOP_HAPTIC_COMMAND every haptic period (what ``telesmooth ground`` with
+      ``haptic: {source: lcm}`` reads);
+    * the planning position: the console's own inverse kinematics of the hand (the same
+      system and settings as the ground's);
+    * the packets the ground sends (TELEOP_JOINT_COMMAND) and its collision events
+      (TELEOP_COLLISION_EVENT), the robot's telemetry (ONBOARD_JOINT_STATUS) → the predicted
+      robot (its copy on the robot's clock, :class:`~telesmooth.systems.robot_predictor.
+      RemoteClock`) and the display.
+    """
+    from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem
+
+    from telesmooth.diagrams.scenario import initial_position
+    from telesmooth.lcm_types import (
+        lcmt_teleop_collision_event,
+        lcmt_teleop_haptic_command,
+        lcmt_teleop_joint_command,
+    )
+    from telesmooth.lcm_types.channels import (
+        ONBOARD_JOINT_STATUS,
+        TELEOP_COLLISION_EVENT,
+        TELEOP_HAPTIC_COMMAND,
+        TELEOP_JOINT_COMMAND,
+    )
+    from telesmooth.systems.inverse_kinematics import InverseKinematicsSystem
+    from telesmooth.systems.lcm_safe_subscriber import LcmSafeSubscriber
+    from telesmooth.systems.operator_messages import (
+        CollisionEventValues,
+        HapticCommandSender,
+        JointCommandPositions,
+    )
+
+    arm = scenario.arm_description
+    n = arm.num_joints
+    period = scenario.haptic.period_s
+    q0 = initial_position(scenario, None)
+    builder = DiagramBuilder()
+    builder.AddNamedSystem("lcm", LcmInterfaceSystem(lcm))
+    builder.AddNamedSystem("operator_console", console)
+    sender = builder.AddNamedSystem("haptic_command_sender", HapticCommandSender(
+        num_axes=len(console_pose_names(scenario)), period_s=period))
+    for name in ("pose_desired", "enable", "stop_requested"):
+        builder.Connect(console.GetOutputPort(name), sender.GetInputPort(name))
+    publisher = builder.AddNamedSystem("haptic_command_publisher", LcmPublisherSystem.Make(
+        TELEOP_HAPTIC_COMMAND, lcmt_teleop_haptic_command, lcm, publish_period=period))
+    builder.Connect(sender.get_lcm_message_output_port(), publisher.get_input_port())
+    ik = builder.AddNamedSystem("inverse_kinematics", InverseKinematicsSystem(
+        scenario.inverse_kinematics, arm=arm, initial_position_rad=q0))
+    builder.Connect(console.get_pose_desired_output_port(), ik.get_pose_desired_input_port())
+    builder.Connect(console.get_enable_output_port(), ik.get_enable_input_port())
+
+    def subscriber(name, channel, lcm_type):
+        return builder.AddNamedSystem(name, LcmSafeSubscriber(
+            channel=channel, lcm_type=lcm_type, lcm=lcm))
+
+    telemetry = subscriber("joint_status_subscriber", ONBOARD_JOINT_STATUS,
+                           lcmt_onboard_joint_status)
+    commands = subscriber("joint_command_subscriber", TELEOP_JOINT_COMMAND,
+                          lcmt_teleop_joint_command)
+    events = subscriber("collision_event_subscriber", TELEOP_COLLISION_EVENT,
+                        lcmt_teleop_collision_event)
+    model = dataclasses.replace(scenario, link=dataclasses.replace(
+        scenario.link, faults=dataclasses.replace(scenario.link.faults, delay_s=0.0)))
+    predictor = builder.AddNamedSystem("robot_predictor", RobotPredictor(
+        lambda start: MakePredictorReplica(model, initial_position_rad=start),
+        num_joints=n, period_s=scenario.predictor.period_s,
+        resync_period_s=scenario.predictor.resync_period_s, remote=True,
+        initial_position_rad=q0, uplink_period_s=scenario.uplink.period_s,
+        sample_period_s=scenario.onboard.tracker.period_s,
+        poll_period_s=scenario.command_receiver.poll_period_s,
+        publish_offset_s=scenario.publish_offset_s))
+    builder.Connect(telemetry.get_packets_output_port(),
+                    predictor.get_telemetry_packets_input_port())
+    builder.Connect(commands.get_packets_output_port(),
+                    predictor.get_uplink_packets_input_port())
+    positions = builder.AddNamedSystem("sent_positions", JointCommandPositions(num_joints=n))
+    builder.Connect(commands.get_lcm_message_output_port(),
+                    positions.get_lcm_message_input_port())
+    values = builder.AddNamedSystem("collision_events", CollisionEventValues())
+    builder.Connect(events.get_lcm_message_output_port(), values.get_lcm_message_input_port())
+    if console.get_q_anchor_input_port() is not None:
+        # Engaging after a stop re-anchors the hand at the last command the ground sent,
+        # while its events say it holds the robot there.
+        builder.Connect(positions.get_q_sent_output_port(), console.get_q_anchor_input_port())
+        builder.Connect(values.GetOutput("holding"), console.get_anchor_input_port())
+    if display is not None:
+        builder.AddNamedSystem("operator_display", display)
+        ports = {"q_planning": ik.get_q_target_output_port(),
+                 "hand_pose": console.get_pose_desired_output_port(),
+                 "enable": console.get_enable_output_port(),
+                 "stop": console.get_stop_requested_output_port(),
+                 "notice": console.get_notice_output_port(),
+                 "saturated": console.get_saturated_output_port(),
+                 "ik_status": ik.get_ik_status_output_port(),
+                 "q_sent": positions.get_q_sent_output_port(),
+                 "collision": values.GetOutput("collision_detected"),
+                 "holding": values.GetOutput("holding"),
+                 "min_distance": values.GetOutput("min_distance")}
+        for name in ("q_received", "tool_received", "q_predicted", "telemetry_age",
+                     "telemetry_silence", "residual", "robot_guard_mode",
+                     "robot_stream_distance"):
+            ports[name] = predictor.get_output(name)
+        display.ConnectPorts(builder, ports)
+    if monitor is not None:
+        builder.AddNamedSystem("wall_clock_monitor", monitor)
+    logs = {"hand_pose": LogVectorOutput(console.get_pose_desired_output_port(), builder,
+                                         period),
+            "hand_enable": LogVectorOutput(console.get_enable_output_port(), builder, period)}
+    for name in ("stop_requested", "notice", "saturated"):
+        logs[f"console_{name}"] = LogVectorOutput(console.GetOutputPort(name), builder, period)
+    diagram = builder.Build()
+    diagram.set_name("operator")
+    return OperatorHandles(diagram=diagram, console=console, inverse_kinematics=ik,
+                           predictor=predictor, logs=logs, scenario=scenario, display=display)

@@ -558,20 +558,73 @@ def _add_teleop_parser(subparsers) -> None:
 def run_teleop_command(args) -> int:
     from telesmooth.scripts.teleop import run_teleop
 
-    # The browser console is the operator: a live one (haptic.live_initial_pose is where the
-    # hand starts), and the deployed chain.
-    scenario = _load_scenario(args, overrides={"haptic": {"source": "console"},
-                                               "chain": "deployed"})
-    if args.duration is not None:
-        _check_finite("--duration", args.duration)
-        _check_at_most("--duration", args.duration, MAX_PROCESS_RUN_S)
+    scenario = _live_scenario(args)
+    _check_live_options(args)
     _check_finite("--realtime", args.realtime)
-    if args.port is not None and not 1 <= args.port <= 65535:
-        raise ValueError(f"--port = {args.port} must be a port number within 1 and 65535")
     with _scenario_outputs(args, scenario) as outputs:
         out = None if args.out is None else outputs.folder("--out", args.out)
         status = run_teleop(scenario, host=args.host, port=args.port,
                             duration_s=args.duration, realtime=args.realtime, out=out)
+    if args.out is not None:
+        print(f"report: {args.out / 'report.md'}")
+    return status
+
+
+def _add_operator_parser(subparsers) -> None:
+    from telesmooth.lcm_types.channels import DEFAULT_LCM_URL
+
+    p = subparsers.add_parser(
+        "operator",
+        help="the operator's console alone, on the LCM bus (with `telesmooth ground` and "
+             "`telesmooth onboard`: three processes)",
+        description="The browser console of `teleop` as its own process: it publishes the "
+        "operator's hand on TELEOP_HAPTIC_COMMAND at 100 Hz (what `telesmooth ground "
+        "--scenario-text \"{haptic: {source: lcm}}\"` reads) and shows the planning position, "
+        "the robot's telemetry (ONBOARD_JOINT_STATUS), the predicted robot and the ground's "
+        "collision events. Keys as `teleop`. See docs/operator.md.",
+    )
+    _add_scenario_arguments(p)
+    p.add_argument("--lcm-url", default=None,
+                   help=f"LCM URL (default: the scenario's, {DEFAULT_LCM_URL})")
+    p.add_argument("--port", type=int, default=None,
+                   help="port of the page (default: the first free from 7000)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="interface the page listens on (default 127.0.0.1: this machine only)")
+    p.add_argument("--duration", type=number, default=None,
+                   help="seconds to run (default: until Ctrl-C)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="folder for the session: operator.npz/.csv, console.csv, "
+                        "predicted.csv, report.md")
+    p.set_defaults(handler=run_operator_command)
+
+
+def _live_scenario(args):
+    """The scenario of a live console (``teleop``, ``operator``): the browser console is the
+    operator (``haptic.live_initial_pose`` is where the hand starts), the deployed chain."""
+    return _load_scenario(args, overrides={"haptic": {"source": "console"},
+                                           "chain": "deployed"})
+
+
+def _check_live_options(args) -> None:
+    if args.duration is not None:
+        _check_finite("--duration", args.duration)
+        _check_at_most("--duration", args.duration, MAX_PROCESS_RUN_S)
+    if args.port is not None and not 1 <= args.port <= 65535:
+        raise ValueError(f"--port = {args.port} must be a port number within 1 and 65535")
+
+
+def run_operator_command(args) -> int:
+    from telesmooth.lcm_types.channels import check_lcm_url
+    from telesmooth.scripts.teleop import run_operator
+
+    scenario = _live_scenario(args)
+    url = check_lcm_url("--lcm-url" if args.lcm_url else "lcm_url (scenario)",
+                        args.lcm_url or scenario.lcm_url)
+    _check_live_options(args)
+    with _scenario_outputs(args, scenario) as outputs:
+        out = None if args.out is None else outputs.folder("--out", args.out)
+        status = run_operator(scenario, lcm_url=url, host=args.host, port=args.port,
+                              duration_s=args.duration, out=out)
     if args.out is not None:
         print(f"report: {args.out / 'report.md'}")
     return status
@@ -955,6 +1008,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_demo_parser(subparsers)
     _add_simulate_parser(subparsers)
     _add_teleop_parser(subparsers)
+    _add_operator_parser(subparsers)
     _add_compare_parser(subparsers)
     _add_foresight_parser(subparsers)
     _add_experiment_parser(subparsers)

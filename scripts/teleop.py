@@ -74,13 +74,12 @@ def open_meshcat(host: str, port: int | None):
                            f"or not allowed: {error}); give another --port") from None
 
 
-def build_teleop(scenario, meshcat, *, monitor=None):
-    """The teleop diagram with the browser console and the display in ``meshcat`` (and the
-    wall-clock ``monitor``); returns (handles, console, display)."""
+def _console_and_display(scenario, meshcat):
+    """The browser console (its controls on the page) and the display; the console's
+    forward kinematics is bound later to the diagram's inverse kinematics (``bind``)."""
     from telesmooth.arms.joint_vectors import as_per_joint
     from telesmooth.console.input import console_params, reach_saturation
-    from telesmooth.diagrams.teleop import MakeTeleopDiagram, console_pose_names
-    from telesmooth.diagrams.visualization import draw_workspace
+    from telesmooth.diagrams.teleop import console_pose_names
     from telesmooth.systems.inverse_kinematics import IkStatus
     from telesmooth.systems.operator_console import MeshcatControls, OperatorConsole
     from telesmooth.systems.operator_display import OperatorDisplay
@@ -93,9 +92,9 @@ def build_teleop(scenario, meshcat, *, monitor=None):
     params = console_params(names, period_s=scenario.haptic.period_s,
                             saturate=reach_saturation(scenario.arm),
                             slider_steps=controls.slider_steps)
-    fk_holder = {}
+    bound = {}
     console = OperatorConsole(params, controls, initial_pose=pose0,
-                              forward_kinematics=lambda q: fk_holder["ik"]
+                              forward_kinematics=lambda q: bound["ik"]
                               .forward_kinematics_pose(q), num_joints=arm.num_joints)
     smoother = scenario.smoother
     display = OperatorDisplay(
@@ -110,10 +109,81 @@ def build_teleop(scenario, meshcat, *, monitor=None):
                                5.0 * scenario.onboard.tracker.noise_m),
         ik_names={status.value: status.name.lower().replace("_", " ")
                   for status in IkStatus})
+
+    def bind(ik):
+        bound["ik"] = ik
+
+    return console, display, bind
+
+
+def build_teleop(scenario, meshcat, *, monitor=None):
+    """The teleop diagram with the browser console and the display in ``meshcat`` (and the
+    wall-clock ``monitor``); returns (handles, console, display)."""
+    from telesmooth.diagrams.teleop import MakeTeleopDiagram
+    from telesmooth.diagrams.visualization import draw_workspace
+
+    console, display, bind = _console_and_display(scenario, meshcat)
     handles = MakeTeleopDiagram(scenario, console=console, display=display, monitor=monitor)
-    fk_holder["ik"] = handles.ground.inverse_kinematics
+    bind(handles.ground.inverse_kinematics)
     draw_workspace(meshcat, scenario.workspace_or_default)
     return handles, console, display
+
+
+def build_operator(scenario, meshcat, lcm, *, monitor=None):
+    """The operator's own process on ``lcm``: the console, its display and the predicted
+    robot; returns (handles, console, display)."""
+    from telesmooth.diagrams.teleop import MakeOperatorDiagram
+    from telesmooth.diagrams.visualization import draw_workspace
+
+    console, display, bind = _console_and_display(scenario, meshcat)
+    handles = MakeOperatorDiagram(scenario, lcm=lcm, console=console, display=display,
+                                  monitor=monitor)
+    bind(handles.inverse_kinematics)
+    draw_workspace(meshcat, scenario.workspace_or_default)
+    return handles, console, display
+
+
+def _run_live(name: str, simulator, monitor, display, duration_s, progress) -> None:
+    """Advances ``simulator`` against the wall clock in slices until ``duration_s`` (None:
+    until SIGINT/SIGTERM), feeding the display the timing and printing ``progress()``
+    every second."""
+    stopped = []
+
+    def on_signal(signum, _frame):
+        if stopped:
+            raise KeyboardInterrupt
+        stopped.append(signal.Signals(signum).name)
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    simulator.Initialize()
+    end = math.inf if duration_s is None else float(duration_s)
+    next_progress = PROGRESS_PERIOD_S
+    try:
+        while not stopped and simulator.get_context().get_time() < end - 1e-9:
+            target = min(end, simulator.get_context().get_time() + SLICE_S)
+            simulator.AdvanceTo(target)
+            display.clock.realtime_rate = monitor.statistics(last_s=1.0).realtime_rate
+            display.clock.late_ticks = monitor.statistics().late_ticks
+            if target >= next_progress - 1e-9:
+                _log(progress())
+                next_progress += PROGRESS_PERIOD_S
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+    if stopped:
+        _log(f"{name}: {stopped[0]} at t = {simulator.get_context().get_time():.2f} s; "
+             "ending the session")
+    stats = monitor.statistics()
+    _log(f"{name}: {simulator.get_context().get_time():.2f} s at {stats.realtime_rate:.3f}× "
+         f"real time; late ticks {stats.late_ticks} of {stats.ticks} (worst "
+         f"{1000 * stats.worst_s:.1f} ms)")
+
+
+def _announce(name: str, scenario, url: str) -> None:
+    print(f"operator console: {url}", flush=True)
+    _log(f"{name}: open {url} in a browser; Space engages the clutch, A/D S/W move the hand"
+         + (", K/I up/down" if scenario.arm == "space_arm" else "")
+         + "; Esc stops. Ctrl-C ends the session.")
 
 
 def run_teleop(scenario, *, host: str = "127.0.0.1", port: int | None = None,
@@ -129,48 +199,60 @@ def run_teleop(scenario, *, host: str = "127.0.0.1", port: int | None = None,
     url = meshcat.web_url().rstrip("/") + "/"
     # A publish per haptic tick records when the tick really ran.
     monitor = WallClockMonitor(scenario.haptic.period_s, rate=max(realtime, 1e-9))
-    handles, console, display = build_teleop(scenario, meshcat, monitor=monitor)
+    handles, _, display = build_teleop(scenario, meshcat, monitor=monitor)
     simulator = make_simulator(handles.diagram, scenario.onboard)
-    print(f"operator console: {url}", flush=True)
-    _log(f"teleop: open {url} in a browser; Space engages the clutch, A/D S/W move the hand"
-         + (", K/I up/down" if scenario.arm == "space_arm" else "")
-         + "; Esc stops. Ctrl-C ends the session.")
-    stopped = []
-
-    def on_signal(signum, _frame):
-        if stopped:
-            raise KeyboardInterrupt
-        stopped.append(signal.Signals(signum).name)
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     if realtime > 0:
         simulator.set_target_realtime_rate(realtime)
-    simulator.Initialize()
-    end = math.inf if duration_s is None else float(duration_s)
-    next_progress = PROGRESS_PERIOD_S
-    try:
-        while not stopped and simulator.get_context().get_time() < end - 1e-9:
-            target = min(end, simulator.get_context().get_time() + SLICE_S)
-            simulator.AdvanceTo(target)
-            stats = monitor.statistics(last_s=1.0)
-            display.clock.realtime_rate = stats.realtime_rate
-            display.clock.late_ticks = monitor.statistics().late_ticks
-            if target >= next_progress - 1e-9:
-                _log(_progress_line(handles, simulator.get_context(), monitor))
-                next_progress += PROGRESS_PERIOD_S
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-    if stopped:
-        _log(f"teleop: {stopped[0]} at t = {simulator.get_context().get_time():.2f} s; "
-             "ending the session")
-    stats = monitor.statistics()
-    _log(f"teleop: {simulator.get_context().get_time():.2f} s at {stats.realtime_rate:.3f}× "
-         f"real time; late ticks {stats.late_ticks} of {stats.ticks} (worst "
-         f"{1000 * stats.worst_s:.1f} ms)")
+    _announce("teleop", scenario, url)
+    _run_live("teleop", simulator, monitor, display, duration_s,
+              lambda: _progress_line(handles, simulator.get_context(), monitor))
     if out is not None:
         write_session(Path(out), handles, simulator.get_context(), monitor=monitor)
     return 0
+
+
+def run_operator(scenario, *, lcm_url: str, host: str = "127.0.0.1", port: int | None = None,
+                 duration_s: float | None = None, out: Path | None = None) -> int:
+    """The console alone on the bus ``lcm_url`` (docs/operator.md): publishes the hand, reads
+    the ground's packets and events and the robot's telemetry for its display; writes the
+    session (the hand, console.csv, predicted.csv, report.md) into ``out``."""
+    from pydrake.lcm import DrakeLcm
+    from pydrake.systems.analysis import Simulator
+
+    from telesmooth.scripts.teleop_report import write_operator_report
+    from telesmooth.systems.wall_clock_monitor import WallClockMonitor
+
+    scenario = console_scenario(scenario)
+    meshcat = open_meshcat(host, port)
+    url = meshcat.web_url().rstrip("/") + "/"
+    lcm = DrakeLcm(lcm_url)
+    monitor = WallClockMonitor(scenario.haptic.period_s)
+    handles, _, display = build_operator(scenario, meshcat, lcm, monitor=monitor)
+    simulator = Simulator(handles.diagram)
+    simulator.set_target_realtime_rate(1.0)
+    _announce("operator", scenario, url)
+    _log(f"operator: publishing the hand on {lcm_url} (TELEOP_HAPTIC_COMMAND); run "
+         "`telesmooth ground --scenario-text \"{haptic: {source: lcm}}\"` and "
+         "`telesmooth onboard` on the same bus")
+    _run_live("operator", simulator, monitor, display, duration_s,
+              lambda: _operator_progress(handles, simulator.get_context(), monitor))
+    if out is not None:
+        write_operator_report(Path(out), handles, simulator.get_context(), monitor=monitor)
+    return 0
+
+
+def _operator_progress(handles, context, monitor) -> str:
+    predictor = handles.predictor
+    view = predictor.view(predictor.GetMyContextFromRoot(context))
+    stats = monitor.statistics(last_s=1.0)
+    state = handles.console.console_state(handles.console.GetMyContextFromRoot(context))
+    clutch = "stopped" if state.stop else "engaged" if state.enabled else "released"
+    link = ("no telemetry yet" if not math.isfinite(view.telemetry_silence_s) else
+            f"no telemetry for {view.telemetry_silence_s:.1f} s"
+            if view.telemetry_silence_s > 1.0 else "telemetry arriving")
+    return (f"operator: t = {context.get_time():6.1f} s, real time {stats.realtime_rate:.2f}×,"
+            f" {link}, clutch {clutch}, prediction residual "
+            + ("—" if not math.isfinite(view.residual_m) else f"{1000 * view.residual_m:.2f} mm"))
 
 
 def _progress_line(handles, context, monitor) -> str:

@@ -133,23 +133,9 @@ def _report_text(metrics: dict, figures) -> str:
         f"`{metrics['scenario']['method']}`, {metrics['num_packets']} packets.",
     ]
     if session.get("ticks"):
-        lines.append(
-            f"Timing: {session['realtime_rate']:.3f}× real time over the session; "
-            f"{session['late_ticks']} of {session['ticks']} haptic ticks ran more than one "
-            f"period (10 ms) late; the latest by {1000 * session['worst_lateness_s']:.1f} ms "
-            f"(99th percentile {1000 * session['p99_lateness_s']:.1f} ms).")
+        lines.append(_timing_text(session))
     lines += ["", plant_text(metrics["plant"]), "", "## Limits", "", limits_text(metrics), "",
-              "## The predicted robot", ""]
-    if prediction is None:
-        lines.append("No prediction was measured (no telemetry arrived).")
-    else:
-        lines.append(
-            f"{prediction['count']} predictions were measured against the telemetry of the "
-            f"same instant: residual max {1000 * prediction['max_m']:.3f} mm, 95th percentile "
-            f"{1000 * prediction['p95_m']:.3f} mm, median {1000 * prediction['median_m']:.4f} "
-            f"mm, each made {prediction['horizon_median_s']:.2f} s (median; at most "
-            f"{prediction['horizon_max_s']:.2f} s) ahead of the telemetry it was synchronised "
-            "on (predicted.csv).")
+              "## The predicted robot", "", _prediction_text(prediction)]
     lines += ["", "## Accuracy", "",
               f"Robot response error against the sent commands (mean / max): "
               f"{1000 * tracking['response_error_m']['mean']:.2f} / "
@@ -161,33 +147,91 @@ def _report_text(metrics: dict, figures) -> str:
     return "\n".join(lines)
 
 
-def write_teleop_report(out: Path, handles, context, *, monitor=None) -> Path:
-    """Writes the session's files (module docstring) into ``out``; returns report.md."""
+def _write_hand_and_prediction(out: Path, handles, context) -> None:
+    """operator.npz, operator.csv, console.csv and predicted.csv of a session."""
     from telesmooth.datasets.haptic_recording import write_haptic_csv, write_haptic_npz
 
-    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     recording = operator_recording(handles, context)
     write_haptic_npz(out / "operator.npz", recording)
     write_haptic_csv(out / "operator.csv", recording)
     if "console_notice" in handles.logs:
         _write_console_csv(out / "console.csv", handles, context)
-    residuals = handles.predictor.residuals
     _write_csv(out / "predicted.csv",
                ["t", "horizon_s", "predicted_x", "predicted_y", "predicted_z", "measured_x",
                 "measured_y", "measured_z", "residual_m"],
                ([float(r.t_s), float(r.horizon_s), *map(float, r.predicted_m),
-                 *map(float, r.measured_m), float(r.residual_m)] for r in residuals))
+                 *map(float, r.measured_m), float(r.residual_m)]
+                for r in handles.predictor.residuals))
+
+
+def _session_timing(monitor) -> dict:
+    if monitor is None:
+        return {}
+    stats = monitor.statistics()
+    return dict(ticks=stats.ticks, late_ticks=stats.late_ticks, worst_lateness_s=stats.worst_s,
+                p99_lateness_s=stats.p99_s, realtime_rate=stats.realtime_rate)
+
+
+def _timing_text(session: dict) -> str:
+    if not session.get("ticks"):
+        return ""
+    return (f"Timing: {session['realtime_rate']:.3f}× real time over the session; "
+            f"{session['late_ticks']} of {session['ticks']} haptic ticks ran more than one "
+            f"period (10 ms) late; the latest by {1000 * session['worst_lateness_s']:.1f} ms "
+            f"(99th percentile {1000 * session['p99_lateness_s']:.1f} ms).")
+
+
+def _prediction_text(prediction) -> str:
+    if prediction is None:
+        return "No prediction was measured (no telemetry arrived)."
+    return (f"{prediction['count']} predictions were measured against the telemetry of the "
+            f"same instant: residual max {1000 * prediction['max_m']:.3f} mm, 95th percentile "
+            f"{1000 * prediction['p95_m']:.3f} mm, median {1000 * prediction['median_m']:.4f} "
+            f"mm, each made {prediction['horizon_median_s']:.2f} s (median; at most "
+            f"{prediction['horizon_max_s']:.2f} s) ahead of the telemetry it was synchronised "
+            "on (predicted.csv).")
+
+
+def write_operator_report(out: Path, handles, context, *, monitor=None) -> Path:
+    """The session of ``telesmooth operator`` (the console alone): the hand, console.csv,
+    predicted.csv, metrics.json and report.md (the chain's own figures are in the ground's
+    and the onboard process's reports)."""
+    out = Path(out)
+    _write_hand_and_prediction(out, handles, context)
+    residuals = handles.predictor.residuals
+    clock = handles.predictor.clock
+    metrics = {"side": "operator", "duration_s": context.get_time(),
+               "session": _session_timing(monitor),
+               "prediction": _prediction_stats(residuals),
+               "clocks": None if clock is None or not clock.ready() else {
+                   "robot_minus_operator_s": clock.robot_minus_local,
+                   "robot_minus_ground_s": clock.robot_minus_ground}}
+    write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
+    figures = _residual_figure(out, residuals, handles.scenario.predictor.residual_warning_m)
+    lines = ["# telesmooth operator", "",
+             "The console alone: the operator's hand went out on TELEOP_HAPTIC_COMMAND; the "
+             "ground's packets and the robot's telemetry came back over the bus. What the "
+             "ground sent and what the robot did are in those processes' own reports.", "",
+             f"Session: {context.get_time():.1f} s. {_timing_text(metrics['session'])}", "",
+             "## The predicted robot", "", _prediction_text(metrics["prediction"]), ""]
+    for title, name in figures:
+        lines += [f"## {title}", "", f"![{title}]({name})", ""]
+    report = out / "report.md"
+    write_text(report, "\n".join(lines))
+    return report
+
+
+def write_teleop_report(out: Path, handles, context, *, monitor=None) -> Path:
+    """Writes the session's files (module docstring) into ``out``; returns report.md."""
+    out = Path(out)
+    _write_hand_and_prediction(out, handles, context)
+    residuals = handles.predictor.residuals
     record = teleop_record(handles, context)
     metrics = run_metrics(record)
     scenario = handles.scenario
-    session = {"downlink": scenario.link.downlink.describe()}
-    if monitor is not None:
-        stats = monitor.statistics()
-        session.update(ticks=stats.ticks, late_ticks=stats.late_ticks,
-                       worst_lateness_s=stats.worst_s, p99_lateness_s=stats.p99_s,
-                       realtime_rate=stats.realtime_rate)
-    metrics["session"] = session
+    metrics["session"] = {"downlink": scenario.link.downlink.describe(),
+                          **_session_timing(monitor)}
     metrics["prediction"] = _prediction_stats(residuals)
     metrics["scenario"]["chain_text"] = describe_chain(scenario)
     write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")

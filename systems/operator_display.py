@@ -235,6 +235,12 @@ class OperatorDisplay(LeafSystem):
     def get_input(self, name: str):
         return self._inputs[name]
 
+    def ConnectPorts(self, builder, ports: dict) -> None:
+        """Connects the inputs named in ``ports`` (input name → output port); the others stay
+        unconnected (shown as unknown)."""
+        for name, port in ports.items():
+            builder.Connect(port, self._inputs[name])
+
     def Connect(self, builder, *, ground, predictor, console=None) -> None:
         """Connects every input from the ground station's systems, the predictor and (if
         given) the console."""
@@ -259,8 +265,7 @@ class OperatorDisplay(LeafSystem):
         if console is not None:
             pairs += [(console.get_notice_output_port(), "notice"),
                       (console.get_saturated_output_port(), "saturated")]
-        for port, name in pairs:
-            builder.Connect(port, self._inputs[name])
+        self.ConnectPorts(builder, {name: port for port, name in pairs})
 
     # -- drawing --------------------------------------------------------------------------
 

@@ -57,6 +57,10 @@ class PacketLog:
     def send_time(self, index: int) -> float:
         return self._times[index]
 
+    def last_send_time(self) -> float:
+        """The newest packet's send time, or −inf."""
+        return self._times[-1] if self._times else -math.inf
+
     def payload(self, index: int) -> bytes:
         return self._payloads[index]
 

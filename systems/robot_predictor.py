@@ -74,9 +74,11 @@ class PredictorReplica:
 
 
 class TelemetrySample(NamedTuple):
-    """One telemetry message as the predictor uses it (times in s, onboard clock)."""
+    """One telemetry message as the predictor uses it (times in s: the sample's and the
+    message's on the onboard clock, its arrival on the predictor's)."""
 
     sample_t_s: float
+    sent_t_s: float
     arrival_t_s: float
     q_link: np.ndarray
     q_motor: np.ndarray
@@ -86,6 +88,7 @@ class TelemetrySample(NamedTuple):
     guard_mode: int
     stream_distance_rad: float
     last_command_seq: int
+    q_commanded: np.ndarray
 
 
 class Residual(NamedTuple):
@@ -126,11 +129,81 @@ def telemetry_sample(msg, arrival_t_s: float, num_joints: int) -> TelemetrySampl
     if any(a.shape != (num_joints,) or not np.all(np.isfinite(a)) for a in arrays):
         return None
     return TelemetrySample(
-        sample_t_s=msg.sample_utime * 1e-6, arrival_t_s=float(arrival_t_s),
+        sample_t_s=msg.sample_utime * 1e-6, sent_t_s=msg.utime * 1e-6,
+        arrival_t_s=float(arrival_t_s),
         q_link=arrays[0], q_motor=arrays[1], v_link=arrays[2], v_motor=arrays[3],
         tool_position_m=np.array(msg.tool_position_measured, dtype=float),
         guard_mode=int(msg.guard_mode), stream_distance_rad=float(msg.stream_distance_rad),
-        last_command_seq=int(msg.last_command_seq))
+        last_command_seq=int(msg.last_command_seq),
+        q_commanded=np.array(msg.joint_position_commanded, dtype=float))
+
+
+class RemoteClock:
+    """The clocks of three processes, as the operator's predictor sees them.
+
+    The operator's console, the ground and the robot each run their own clock (each
+    simulation starts at its process's start). The predicted robot runs on the robot's:
+
+    * now on the robot's clock = the console's now + (the robot's time − the console's): the
+      median over the last batches the console took of (their newest message's send time −
+      the instant the console took the batch), plus half the console's period (the wait of a
+      message in its batch, on average). Messages queued while the console was busy are
+      older than their batch's newest; a median shrugs off a late batch;
+    * a packet sent at g (ground clock) reaches the robot at g + (the smallest acceptance −
+      send time over the packets the telemetry names as accepted): the copy's packet is
+      given that send time, less half a poll, so that the copy's receiver takes it in the
+      poll the robot's took the first one.
+
+    Until the telemetry has named an accepted packet, packets wait (:meth:`ready`).
+    """
+
+    def __init__(self, *, poll_period_s: float, publish_offset_s: float,
+                 batch_period_s: float = 0.04, window: int = 50):
+        self._poll = float(poll_period_s)
+        self._publish = float(publish_offset_s)
+        self._batch = float(batch_period_s)
+        self._offsets: list[float] = []
+        self._window = int(window)
+        self.robot_minus_local: float | None = None
+        self.robot_minus_ground: float | None = None
+        self._accepted: dict[int, float] = {}
+        self._sent: dict[int, float] = {}
+
+    def newest(self, sample: TelemetrySample) -> None:
+        """The newest message of a batch: its send time against when it was seen."""
+        self._offsets.append(sample.sent_t_s - sample.arrival_t_s)
+        del self._offsets[:-self._window]
+        self.robot_minus_local = float(np.median(self._offsets)) + 0.5 * self._batch
+
+    def telemetry(self, sample: TelemetrySample) -> None:
+        k = sample.last_command_seq
+        if k >= 0 and k not in self._accepted:
+            # The first message that names it was published publish_offset_s after the poll
+            # that accepted it.
+            self._accepted[k] = sample.sent_t_s - self._publish
+            self._match(k)
+
+    def packet(self, seq: int, ground_t_s: float) -> None:
+        self._sent[seq] = ground_t_s
+        self._match(seq)
+
+    def _match(self, seq: int) -> None:
+        if seq in self._accepted and seq in self._sent:
+            offset = self._accepted[seq] - self._sent[seq] - 0.5 * self._poll
+            if self.robot_minus_ground is None or offset < self.robot_minus_ground:
+                self.robot_minus_ground = offset
+
+    def ready(self) -> bool:
+        return self.robot_minus_local is not None and self.robot_minus_ground is not None
+
+    def now(self, local_t_s: float) -> float:
+        return local_t_s + self.robot_minus_local
+
+    def send_time(self, ground_t_s: float) -> float:
+        return ground_t_s + self.robot_minus_ground
+
+
+
 
 
 class RobotPredictor(LeafSystem):
@@ -141,6 +214,7 @@ class RobotPredictor(LeafSystem):
         name: RobotPredictor
         input_ports:
         - uplink_message
+        - uplink_packets
         - telemetry_packets
         output_ports:
         - q_predicted
@@ -153,15 +227,17 @@ class RobotPredictor(LeafSystem):
         - robot_guard_mode
         - robot_stream_distance
 
-    - ``uplink_message``: the ground's current ``lcmt_teleop_joint_command`` (the sender's
-      output); a packet with a seq above the last one is appended to the copy's log, sent
-      at its ``utime``.
+    - ``uplink_message``: in one process, the ground's current ``lcmt_teleop_joint_command``
+      (the sender's output); a packet with a seq above the last one is appended to the
+      copy's log, sent at its ``utime``. ``uplink_packets``: with ``remote=True`` (the
+      operator's own process), the packets the ground sent as heard on the bus (a
+      subscriber's ``packets``), placed on the robot's clock by a :class:`RemoteClock`.
     - ``telemetry_packets``: the telemetry delivered to the ground, as a ``LinkChannel``'s
       ``packets`` output (arrival number, encoded ``lcmt_onboard_joint_status``).
     - ``q_predicted`` (J, rad), ``tool_predicted`` (3, m): the copy at the last update's time.
     - ``q_received`` (J), ``tool_received`` (3): the newest telemetry (NaN before any).
-    - ``telemetry_age`` (1, s): update time − the newest sample's instant; ``telemetry_silence``
-      (1, s): update time − its arrival (inf before any telemetry).
+    - ``telemetry_age`` (1, s): now − the newest sample's instant; ``telemetry_silence``
+      (1, s): now − the newest message's arrival (inf before any telemetry).
     - ``residual`` (1, m): the largest residual measured over the last
       ``residual_window_s`` of predicted instants (NaN before any): a model that is off shows
       while the robot moves, not only at the instant it moved most.
@@ -170,31 +246,52 @@ class RobotPredictor(LeafSystem):
 
     Update: periodic unrestricted, every ``period_s`` from 0 (the display's rate); the copy
     is re-synchronised from the newest telemetry at most every ``resync_period_s`` (default
-    every update) and otherwise continues.
+    every update) and otherwise continues. Predictions are made for instants on the
+    telemetry's sample grid (``sample_period_s``), so that each can be measured.
     """
 
-    def __init__(self, replica: PredictorReplica, *, num_joints: int, period_s: float = 0.04,
-                 resync_period_s: float | None = None, initial_position_rad,
+    def __init__(self, replica_factory: Callable[[np.ndarray], PredictorReplica], *,
+                 num_joints: int, period_s: float = 0.04, resync_period_s: float | None = None,
+                 initial_position_rad=None, remote: bool = False,
+                 sample_period_s: float = 0.01, poll_period_s: float = 0.01,
+                 publish_offset_s: float = 0.001, uplink_period_s: float = 0.25,
                  residual_window_s: float = 2.0, residual_history: int = 100_000):
+        """Args:
+            replica_factory: start pose (J,) → the :class:`PredictorReplica` to run.
+            initial_position_rad: The robot's start pose: the copy is built at once (in one
+                process it is required); with ``remote=True`` a robot whose first telemetry
+                says it is commanded elsewhere gets a copy built there (without a start
+                pose, at the first telemetry).
+        """
         super().__init__()
         check_period("RobotPredictor.period_s", period_s)
+        check_period("RobotPredictor.sample_period_s", sample_period_s)
         if resync_period_s is not None:
             check_period("RobotPredictor.resync_period_s", resync_period_s)
         # Re-synchronising costs a run over the whole horizon; in between the look-ahead
         # only continues (the same model, the same commands).
         self._resync_period = float(period_s if resync_period_s is None else resync_period_s)
-        self._replica = replica
+        self._factory = replica_factory
         self._n = int(num_joints)
         self._period = float(period_s)
-        q0 = np.asarray(initial_position_rad, dtype=float)
-        self._synced = replica.make_simulator(replica.diagram)
-        self._ahead = replica.make_simulator(replica.diagram)
-        self._synced.Initialize()
-        self._ahead.get_mutable_context().SetTimeStateAndParametersFrom(
-            self._synced.get_context())
-        self._ahead.Initialize(InitializeParams(suppress_initialization_events=True))
+        self._grid = float(sample_period_s)
+        self._remote = bool(remote)
+        self._clock = (RemoteClock(poll_period_s=poll_period_s, publish_offset_s=publish_offset_s,
+                                   batch_period_s=period_s) if remote else None)
+        self._uplink_period = float(uplink_period_s)
+        self._recent: list[TelemetrySample] = []   # the last seconds of telemetry
+        self._ahead_stale = False
+        self._pending: list[tuple[int, float, object]] = []
+        self._replica = self._synced = self._ahead = None
+        self._start = None
+        if initial_position_rad is not None:
+            # Built now (a build takes about a second: not in the middle of a live run).
+            self._build(np.asarray(initial_position_rad, dtype=float))
+        elif not remote:
+            raise ValueError("RobotPredictor: initial_position_rad is needed in one process")
         self._synced_sample_t = -np.inf
         self._last_packet_number = 0
+        self._last_uplink_number = 0
         self._last_arrival_t = -np.inf
         self._newest: TelemetrySample | None = None
         self._predictions: dict[int, tuple[float, np.ndarray]] = {}
@@ -204,20 +301,25 @@ class RobotPredictor(LeafSystem):
         """Every prediction: (instant, horizon, tool position, q_link)."""
         self._residual_history = int(residual_history)
         self._residual_window = float(residual_window_s)
-        tool0, _ = self._predicted(self._ahead.get_context())
         nan_q, nan_p = np.full(self._n, np.nan), np.full(3, np.nan)
-        view = PredictorView(q_predicted=q0.copy(), tool_predicted=tool0, q_received=nan_q,
+        if self._ahead is not None:
+            tool0, q0 = self._predicted(self._ahead.get_context())
+        else:
+            tool0, q0 = nan_p, nan_q
+        view = PredictorView(q_predicted=q0, tool_predicted=tool0, q_received=nan_q,
                              tool_received=nan_p, telemetry_age_s=np.inf,
                              telemetry_silence_s=np.inf, residual_m=np.nan, guard_mode=-1.0,
                              stream_distance_rad=np.nan)
         self._view = self.DeclareAbstractState(AbstractValue.Make(view))
         self._uplink_input = self.DeclareAbstractInputPort(
             "uplink_message", AbstractValue.Make(lcmt_teleop_joint_command()))
+        self._uplink_packets_input = self.DeclareAbstractInputPort(
+            "uplink_packets", AbstractValue.Make(()))
         self._telemetry_input = self.DeclareAbstractInputPort(
             "telemetry_packets", AbstractValue.Make(()))
         self.DeclarePeriodicUnrestrictedUpdateEvent(self._period, 0.0, self._update)
 
-        def output(name, size, field, scalar=False):
+        def output(name, size, field):
             def calc(context, out):
                 value = getattr(context.get_abstract_state(self._view).get_value(), field)
                 out.SetFromVector(np.atleast_1d(np.asarray(value, dtype=float)))
@@ -235,10 +337,23 @@ class RobotPredictor(LeafSystem):
             "robot_stream_distance": output("robot_stream_distance", 1, "stream_distance_rad"),
         }
 
+    def _build(self, q0: np.ndarray) -> None:
+        self._start = np.array(q0, dtype=float)
+        self._replica = self._factory(q0)
+        self._synced = self._replica.make_simulator(self._replica.diagram)
+        self._ahead = self._replica.make_simulator(self._replica.diagram)
+        self._synced.Initialize()
+        self._ahead.get_mutable_context().SetTimeStateAndParametersFrom(
+            self._synced.get_context())
+        self._ahead.Initialize(InitializeParams(suppress_initialization_events=True))
+
     # -- accessors ------------------------------------------------------------------------
 
     def get_uplink_message_input_port(self):
         return self._uplink_input
+
+    def get_uplink_packets_input_port(self):
+        return self._uplink_packets_input
 
     def get_telemetry_packets_input_port(self):
         return self._telemetry_input
@@ -250,6 +365,10 @@ class RobotPredictor(LeafSystem):
     @property
     def newest_telemetry(self) -> TelemetrySample | None:
         return self._newest
+
+    @property
+    def clock(self) -> RemoteClock | None:
+        return self._clock
 
     def view(self, context) -> PredictorView:
         return context.get_abstract_state(self._view).get_value()
@@ -276,32 +395,91 @@ class RobotPredictor(LeafSystem):
         record = robot.tracker.Record(np.array([replica_context.get_time()]), state[None, :])
         return record.tool_position_m[0], record.q_link[0]
 
-    def _ingest(self, context) -> list[TelemetrySample]:
-        """Appends a new packet to the copy's log; decodes new telemetry (in arrival order)."""
-        msg = self._uplink_input.Eval(context)
-        if msg.seq >= 0 and msg.seq > self._replica.packets.last_seq():
-            self._replica.packets.append(msg.utime * 1e-6, copy.deepcopy(msg))
-        samples = []
-        now = context.get_time()
-        for number, data in self._telemetry_input.Eval(context):
-            if number <= self._last_packet_number:
+    def _decode_new(self, packets, last_number: int, lcm_type):
+        """(the newest arrival number, the new packets decoded)."""
+        decoded = []
+        for number, data in packets:
+            if number <= last_number:
                 continue
-            self._last_packet_number = number
+            last_number = number
             try:
-                status = decode_exact(lcmt_onboard_joint_status, data)
-            except Exception:  # noqa: BLE001 - garbage on the downlink is not telemetry
+                decoded.append(decode_exact(lcm_type, data))
+            except Exception:  # noqa: BLE001 - garbage on a bus is nobody's message
                 continue
+        return last_number, decoded
+
+    def _ingest(self, context) -> list[TelemetrySample]:
+        """New packets into the copy's log; new telemetry decoded (in arrival order)."""
+        now = context.get_time()
+        self._last_packet_number, statuses = self._decode_new(
+            self._telemetry_input.Eval(context), self._last_packet_number,
+            lcmt_onboard_joint_status)
+        samples = []
+        for status in statuses:
             sample = telemetry_sample(status, now, self._n)
             if sample is not None:
                 samples.append(sample)
                 self._last_arrival_t = now
+                if self._clock is not None:
+                    self._clock.telemetry(sample)
+        if samples and self._clock is not None:
+            self._clock.newest(max(samples, key=lambda sample: sample.sent_t_s))
+        if not self._remote:
+            msg = self._uplink_input.Eval(context)
+            if msg.seq >= 0 and msg.seq > self._replica.packets.last_seq():
+                self._replica.packets.append(msg.utime * 1e-6, copy.deepcopy(msg))
+            return samples
+        self._last_uplink_number, commands = self._decode_new(
+            self._uplink_packets_input.Eval(context), self._last_uplink_number,
+            lcmt_teleop_joint_command)
+        for msg in commands:
+            self._clock.packet(int(msg.seq), msg.utime * 1e-6)
+            self._pending.append((int(msg.seq), msg.utime * 1e-6, msg))
+        if samples and self._synced_sample_t == -np.inf and (
+                self._replica is None or np.max(np.abs(samples[-1].q_commanded - self._start))
+                > 1e-6):
+            # The robot is not where the copy was built: a copy from its commanded pose.
+            self._build(samples[-1].q_commanded)
+        if self._replica is not None and self._clock.ready():
+            log = self._replica.packets
+            ahead = self._ahead.get_context().get_time()
+            for seq, sent, msg in sorted(self._pending, key=lambda item: item[0]):
+                if seq > log.last_seq():
+                    send = max(self._clock.send_time(sent), log.last_send_time())
+                    log.append(send, _for_the_copy(msg))
+                    # Heard after the look-ahead passed it: the look-ahead starts again.
+                    self._ahead_stale |= send <= ahead
+            self._pending.clear()
         return samples
+
+    def _known_until(self, now: float) -> float:
+        """Up to when (the copy's clock) the packets that reach the robot are known: in one
+        process, always; on the bus, until the next packet is due (the last heard one's
+        time + an uplink period), or now if the ground has gone quiet."""
+        if not self._remote:
+            return np.inf
+        log = self._replica.packets
+        if len(log) == 0:
+            return now
+        due = log.last_send_time() + self._uplink_period
+        return now if now > due + self._uplink_period else due
+
+    def _sync_sample(self, now: float) -> TelemetrySample | None:
+        """The newest telemetry sample the copy may be synchronised on: at most what the
+        packets known let it reach, and a re-synchronisation period after the last."""
+        limit = self._known_until(now)
+        for sample in reversed(self._recent):
+            if sample.sample_t_s <= limit + 1e-9:
+                if sample.sample_t_s >= self._synced_sample_t + self._resync_period - 1e-9:
+                    return sample
+                return None
+        return None
 
     def _measure(self, sample: TelemetrySample) -> None:
         """The residual of the prediction made for this sample's instant, if one was."""
-        key = int(round(sample.sample_t_s / self._period))
-        if abs(key * self._period - sample.sample_t_s) > 1e-6:
-            return    # a sample between two predictions
+        key = int(round(sample.sample_t_s / self._grid))
+        if abs(key * self._grid - sample.sample_t_s) > 1e-6:
+            return    # a sample off the grid
         made = self._predictions.pop(key, None)
         if made is None:
             return
@@ -312,8 +490,21 @@ class RobotPredictor(LeafSystem):
         if len(self.residuals) > self._residual_history:
             del self.residuals[0]
 
+    def _now(self, local_t: float) -> float | None:
+        """Now on the copy's clock (the robot's), on the sample grid; None if unknown."""
+        if self._clock is None:
+            now = local_t
+        elif self._clock.robot_minus_local is None:
+            return None
+        else:
+            now = self._clock.now(local_t)
+        # The next instant of the grid: a prediction is for an instant whose telemetry has
+        # not been taken yet (three processes on one host hear the robot within a
+        # millisecond of its publishing).
+        return self._grid * np.ceil(now / self._grid - 1e-9)
+
     def _update(self, context, state) -> None:
-        now = context.get_time()
+        local = context.get_time()
         samples = self._ingest(context)
         view = self.view(context)
         newest = self._newest
@@ -321,39 +512,68 @@ class RobotPredictor(LeafSystem):
             self._measure(sample)
             if newest is None or sample.sample_t_s > newest.sample_t_s:
                 newest = sample
+            self._recent.append(sample)
         self._newest = newest
-        if newest is not None and newest.sample_t_s >= (
-                self._synced_sample_t + self._resync_period - 1e-9):
+        if self._recent:
+            self._recent.sort(key=lambda sample: sample.sample_t_s)
+            horizon_start = self._recent[-1].sample_t_s - 2.0
+            while self._recent and self._recent[0].sample_t_s < horizon_start:
+                del self._recent[0]
+        now = self._now(local)
+        if self._replica is None or now is None:
+            return
+        sync = self._sync_sample(now)
+        if sync is not None:
             # Re-synchronise: the copy at the sample's instant, with the measured state.
-            if newest.sample_t_s > self._synced.get_context().get_time():
-                self._synced.AdvanceTo(newest.sample_t_s)
+            if self._remote and len(self._replica.packets) == 0:
+                # Nothing sent yet: the copy rests until the robot's clock reads this (its
+                # clock started long before the console's).
+                self._synced.get_mutable_context().SetTime(
+                    max(sync.sample_t_s, self._synced.get_context().get_time()))
+                self._synced.Initialize(InitializeParams(suppress_initialization_events=True))
+            elif sync.sample_t_s > self._synced.get_context().get_time():
+                self._synced.AdvanceTo(sync.sample_t_s)
             self._replica.robot.SetMeasuredState(
-                self._synced.get_mutable_context(), q_link=newest.q_link,
-                q_motor=newest.q_motor, v_link=newest.v_link, v_motor=newest.v_motor)
-            self._synced_sample_t = newest.sample_t_s
+                self._synced.get_mutable_context(), q_link=sync.q_link,
+                q_motor=sync.q_motor, v_link=sync.v_link, v_motor=sync.v_motor)
+            self._synced_sample_t = sync.sample_t_s
+            self._ahead_stale = True
+        if self._ahead_stale:
             self._ahead.get_mutable_context().SetTimeStateAndParametersFrom(
                 self._synced.get_context())
             self._ahead.Initialize(InitializeParams(suppress_initialization_events=True))
+            self._ahead_stale = False
         if now > self._ahead.get_context().get_time():
             self._ahead.AdvanceTo(now)
         tool, q = self._predicted(self._ahead.get_context())
         # How far ahead of the telemetry the copy was last synchronised on.
-        horizon = now - (self._synced_sample_t if newest is not None else 0.0)
-        self._predictions[int(round(now / self._period))] = (horizon, tool)
+        horizon = now - (self._synced_sample_t if newest is not None
+                         else self._synced.get_context().get_time())
+        self._predictions[int(round(now / self._grid))] = (horizon, tool)
         self.predictions.append((now, horizon, tool, q))
         # Predictions older than the newest sample will never be measured.
         if newest is not None:
-            stale = [k for k in self._predictions if k * self._period < newest.sample_t_s - 1e-9]
+            stale = [k for k in self._predictions if k * self._grid < newest.sample_t_s - 1e-9]
             for k in stale:
                 del self._predictions[k]
-        residual = self.recent_residual()
         state.get_mutable_abstract_state(self._view).set_value(PredictorView(
             q_predicted=q, tool_predicted=tool,
             q_received=view.q_received if newest is None else newest.q_link,
             tool_received=view.tool_received if newest is None else newest.tool_position_m,
             telemetry_age_s=np.inf if newest is None else now - newest.sample_t_s,
-            telemetry_silence_s=now - self._last_arrival_t,
-            residual_m=residual,
+            telemetry_silence_s=local - self._last_arrival_t,
+            residual_m=self.recent_residual(),
             guard_mode=-1.0 if newest is None else float(newest.guard_mode),
             stream_distance_rad=(np.nan if newest is None
                                  else newest.stream_distance_rad)))
+
+
+def _for_the_copy(msg):
+    """A packet as the copy's receiver takes it: the copy has no epoch, session or key (the
+    operator already trusts what it heard the ground send)."""
+    packet = copy.deepcopy(msg)
+    packet.onboard_epoch = 0
+    packet.session_id = 0
+    packet.auth_tag_size = 0
+    packet.auth_tag = b""
+    return packet
