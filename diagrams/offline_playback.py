@@ -29,6 +29,18 @@ the steps are no longer than before, but they no longer end at the sample instan
 cubic interpolation reaches within the integration error).
 A discrete plant (``onboard.time_step_s`` > 0) has no dense output; its tracker stays in the
 diagram and samples with its own event.
+
+The chain (``chain``). ``"paper"`` (default): the uplink's held command drives the robot
+directly, its send time starting each ramp (the paper's set-up; what ``compare`` and
+``experiment`` reproduce). ``"deployed"``: every packet goes the way it goes in the deployed
+chain of one process (:func:`~telesmooth.diagrams.teleoperation.AddDeployedLink`, exactly as
+:func:`~telesmooth.diagrams.teleoperation.MakeTeleoperationDiagram` builds it): formed by the
+sender, carried by the link (``scenario.link.faults``: a perfect link by default), examined by
+the onboard receiver and passed through the onboard link guard, which keeps what reaches the
+robot within the limits; the robot is built as the onboard process builds it (its
+interpolator polls every 10 ms and starts a ramp at the poll that sees a new command). The
+guard's loggers (:func:`~telesmooth.diagrams.teleoperation.add_link_loggers`) and the ramp
+starts are logged every receiver poll; :func:`playback_guard_record` reads what the guard did.
 """
 
 from __future__ import annotations
@@ -47,12 +59,20 @@ from telesmooth.diagrams.offline_validation import (
     describe_violations,
     validation_report,
 )
-from telesmooth.diagrams.scenario import Scenario
-from telesmooth.diagrams.teleoperation import AddOnboardRobot, connect_uplink_to_robot
+from telesmooth.diagrams.scenario import CHAINS, Scenario
+from telesmooth.diagrams.simulation import GuardRecord, guard_record
+from telesmooth.diagrams.teleoperation import (
+    AddDeployedLink,
+    AddOnboardRobot,
+    GroundHandles,
+    add_link_loggers,
+    connect_uplink_to_robot,
+)
 from telesmooth.systems.flexible_arm import FlexibleJointArm, make_simulator
 from telesmooth.systems.laser_tracker import tracker_record
 from telesmooth.systems.planned_path_source import PlannedPathSource
 from telesmooth.systems.uplink import Uplink
+from telesmooth.user_input import unknown_choice
 
 __all__ = [
     "AddPathPlayback",
@@ -60,7 +80,10 @@ __all__ = [
     "OfflinePlaybackHandles",
     "SignalLog",
     "copy_logs",
+    "RAMP_START_LOG",
     "play_path",
+    "playback_guard_record",
+    "ramp_start_times",
     "run_offline",
     "simulate_playback",
     "tracker_sample_times",
@@ -106,7 +129,8 @@ class OfflinePlaybackHandles:
 
 
 def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q_start,
-                    states=None, contact_geometry: bool = True):
+                    states=None, contact_geometry: bool = True, chain: str = "paper",
+                    collision_model=None):
     """Adds a 4 Hz joint path → the scenario's Uplink → the onboard robot, with loggers.
 
     No check is made here: callers that command a real or a safety-relevant plant validate
@@ -115,18 +139,31 @@ def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q
 
     Args:
         builder: The builder to add to.
-        scenario: The uplink period, arm and onboard settings.
+        scenario: The uplink period, arm and onboard settings (and, deployed, the link, the
+            receiver and the guard). Its own ``chain`` is not read: ``chain`` says.
         positions: The path, rad, (N, J).
         q_start: The robot's start pose, rad, (J,).
         states: Optional [q, q̇, q̈, q⃛] per row, (N, J, 4), sent with the packets.
         contact_geometry: False: the robot's plant has no collision geometry (continuous
             plant only; :func:`play_path` certifies such a run free of self-contact).
+        chain: ``"paper"`` (default): the uplink drives the robot directly; ``"deployed"``:
+            through the link, the onboard receiver and the link guard (module docstring).
+        collision_model: Deployed only: an ``ArmCollisionModel`` of the scenario's arm and
+            workspace for the guard to share (None builds one).
 
     Returns:
-        (source, uplink, robot, logs): ``logs`` as :class:`OfflinePlaybackHandles`. Run the
-        diagram with :func:`simulate_playback`, which returns the tracker's record (with the
-        continuous plant the tracker is not a stage of the diagram).
+        (source, uplink, robot, logs): ``logs`` as :class:`OfflinePlaybackHandles`, and
+        deployed also the loggers of
+        :func:`~telesmooth.diagrams.teleoperation.add_link_loggers` and :data:`RAMP_START_LOG`,
+        every receiver poll. Run the diagram with :func:`simulate_playback`, which returns the
+        tracker's record (with the continuous plant the tracker is not a stage of the diagram).
+
+    Raises:
+        ValueError: An unknown ``chain``.
     """
+    if chain not in CHAINS:
+        raise ValueError(unknown_choice("chain", chain, CHAINS, noun="chains"))
+    deployed = chain == "deployed"
     arm = scenario.arm_description
     period = scenario.uplink.period_s
     # Stage 1: the path, one row per uplink tick.
@@ -141,11 +178,25 @@ def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q
     # Stage 3: the onboard robot, at rest at the committed pose.
     # A continuous plant's tracker is sampled after the run, from the integrator's dense
     # output; a discrete plant has none, and its tracker stays a stage of the diagram.
+    # Deployed, the robot is built as the onboard process builds it (its interpolator polls
+    # every 10 ms); driven by the uplink it polls only at the ticks.
     continuous = scenario.onboard.time_step_s == 0.0
     robot = AddOnboardRobot(builder, scenario, initial_position_rad=q_start,
-                            command_period_s=period, tracker_in_diagram=not continuous,
+                            command_period_s=None if deployed else period,
+                            tracker_in_diagram=not continuous,
                             contact_geometry=contact_geometry)
-    connect_uplink_to_robot(builder, uplink, robot)
+    if deployed:
+        # Stage 2½: sender → link → receiver → link guard, as AddDeployedLink builds it for
+        # the live chain (the ground here is the uplink alone: no operator, FIFO or smoother).
+        ground = GroundHandles(
+            haptic=None, inverse_kinematics=None,
+            collision_checker=_SharedCollisionModel(collision_model), period_mean=None,
+            fifo=None, smoother=None, uplink=uplink, recording=None,
+            initial_position_rad=np.asarray(q_start, dtype=float),
+            joint_names=tuple(arm.joint_names))
+        receiver, guard, _ = AddDeployedLink(builder, ground, scenario, robot)
+    else:
+        connect_uplink_to_robot(builder, uplink, robot)
     ports = {"sequence_number": uplink.get_sequence_number_output_port(),
              "send_time": uplink.get_send_time_output_port(),
              "q_sent": uplink.get_q_sent_output_port(),
@@ -153,6 +204,12 @@ def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q
              "command_rejected": robot.GetOutputPort("command_rejected"),
              "command_ramp": robot.GetOutputPort("command_ramp")}
     logs = {name: LogVectorOutput(port, builder, period) for name, port in ports.items()}
+    if deployed:
+        poll = scenario.command_receiver.poll_period_s
+        logs.update(add_link_loggers(builder, receiver, guard, poll))
+        # The ramps start at the interpolator's 10 ms polls: logged at the receiver's.
+        logs[RAMP_START_LOG] = LogVectorOutput(robot.GetOutputPort("command_ramp"), builder,
+                                               poll)
     if not continuous:
         logs[_TRACKER_LOG] = LogVectorOutput(robot.GetOutputPort("tracker_measurement"),
                                              builder, scenario.onboard.tracker.period_s)
@@ -161,6 +218,52 @@ def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q
 
 _TRACKER_LOG = "tracker_measurement"
 """The logger of a discrete plant's tracker in playback (its record is returned as "tracker")."""
+
+RAMP_START_LOG = "ramp_start"
+"""Deployed playback: the robot's ``command_ramp`` logged every receiver poll (its first
+column is the start t₀ of the ramp in progress: every instant the robot began to move towards
+a new command)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class _SharedCollisionModel:
+    """What :func:`~telesmooth.diagrams.teleoperation.AddDeployedLink` reads of the ground's
+    collision checker: its collision model, shared with the guard (None: the guard builds
+    its own)."""
+
+    collision_model: object = None
+
+
+class _CopiedLog:
+    """A :class:`SignalLog` read as a VectorLogSink's log (``FindLog(context)`` → itself), so
+    :func:`~telesmooth.diagrams.simulation.guard_record` reads copied playback logs as it reads
+    a live run's."""
+
+    def __init__(self, log: SignalLog):
+        self._log = log
+
+    def FindLog(self, context):  # noqa: N802 (Drake's name)
+        return self
+
+    def data(self) -> np.ndarray:
+        return self._log.values.T
+
+    def sample_times(self) -> np.ndarray:
+        return self._log.t_s
+
+
+def playback_guard_record(logs: dict, poll_period_s: float) -> GuardRecord:
+    """What the link guard of a deployed playback did (:func:`play_path`'s ``logs``, with
+    ``chain = "deployed"``), as :func:`~telesmooth.diagrams.simulation.guard_record` reads a
+    live run: every command it issued, the packet each followed, its modes and counts."""
+    return guard_record({name: _CopiedLog(log) for name, log in logs.items()
+                         if isinstance(log, SignalLog)}, None, poll_period_s)
+
+
+def ramp_start_times(logs: dict) -> np.ndarray:
+    """Deployed playback: every instant the robot began a ramp towards a new command, s
+    (sorted; from :data:`RAMP_START_LOG`)."""
+    return np.unique(logs[RAMP_START_LOG].values[:, 0])
 
 
 def tracker_sample_times(period_s: float, duration_s: float) -> np.ndarray:
@@ -245,7 +348,8 @@ def simulate_playback(diagram, robot: FlexibleJointArm, loggers: dict, duration_
 
 
 def play_path(scenario: Scenario, positions, *, q_start, duration_s: float, states=None,
-              name: str = "playback") -> tuple[dict, SelfContactCheck | None]:
+              name: str = "playback", chain: str = "paper",
+              collision_model=None) -> tuple[dict, SelfContactCheck | None]:
     """Plays a 4 Hz joint path through the scenario's uplink and robot and returns the logs.
 
     With the continuous plant, the run is made first without the plant's collision geometry
@@ -259,7 +363,9 @@ def play_path(scenario: Scenario, positions, *, q_start, duration_s: float, stat
     with the geometry, and that run is returned. A discrete plant always carries its geometry.
 
     Args:
-        scenario, positions, q_start, states: As :func:`AddPathPlayback`.
+        scenario, positions, q_start, states, chain, collision_model: As
+            :func:`AddPathPlayback` (``chain = "deployed"``: through the onboard receiver
+            and link guard; read the guard's record with :func:`playback_guard_record`).
         duration_s: Simulated time, s (> 0).
         name: The diagram's name.
 
@@ -277,7 +383,8 @@ def play_path(scenario: Scenario, positions, *, q_start, duration_s: float, stat
         certificate = self_contact_certificate(arm)
         check = certificate.refusal
         if check is None:
-            logs = _play(scenario, positions, q_start, duration_s, states, name, False)
+            logs = _play(scenario, positions, q_start, duration_s, states, name, False, chain,
+                         collision_model)
             # [q; v] of the same model: check() refuses states of another width.
             plant_state = logs["plant_state"].values
             check = certificate.check(plant_state[:, :certificate.num_positions],
@@ -285,13 +392,16 @@ def play_path(scenario: Scenario, positions, *, q_start, duration_s: float, stat
                                       scenario.onboard.tracker.period_s)
             if check.certified:
                 return logs, check
-    return _play(scenario, positions, q_start, duration_s, states, name, True), check
+    return _play(scenario, positions, q_start, duration_s, states, name, True, chain,
+                 collision_model), check
 
 
-def _play(scenario, positions, q_start, duration_s, states, name, contact_geometry) -> dict:
+def _play(scenario, positions, q_start, duration_s, states, name, contact_geometry,
+          chain="paper", collision_model=None) -> dict:
     builder = DiagramBuilder()
     _, _, robot, loggers = AddPathPlayback(builder, scenario, positions, states=states,
-                                           q_start=q_start, contact_geometry=contact_geometry)
+                                           q_start=q_start, contact_geometry=contact_geometry,
+                                           chain=chain, collision_model=collision_model)
     diagram = builder.Build()
     diagram.set_name(name)
     return simulate_playback(diagram, robot, loggers, duration_s)[1]

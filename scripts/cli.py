@@ -644,7 +644,16 @@ def _add_compare_parser(subparsers) -> None:
                    help="comma list of methods (default all: " + ",".join(METHODS)
                    + "); original is always run, it is the reference of P")
     _add_offline_solver_argument(p)
+    _add_playback_chain_argument(p)
     p.set_defaults(handler=run_compare)
+
+
+def _add_playback_chain_argument(p) -> None:
+    p.add_argument("--chain", choices=("paper", "deployed"), default="paper",
+                   help="'paper' (default; the paper's set-up): each method's commands drive "
+                        "the robot directly; 'deployed': through the onboard receiver and "
+                        "link guard, as `telesmooth onboard` runs them (the guard keeps what "
+                        "the robot receives within the limits; the report says what it cut)")
 
 
 def _add_foresight_parser(subparsers) -> None:
@@ -696,7 +705,8 @@ def run_compare(args) -> int:
     methods = _method_list(args.methods, METHODS)
     with _scenario_outputs(args, scenario) as outputs:
         report = write_comparison_report(outputs.folder("--out", args.out), scenario,
-                                         methods=methods, offline_solver=args.solver)
+                                         methods=methods, offline_solver=args.solver,
+                                         chain=args.chain)
     print(f"report: {args.out / report.name}")
     return 0
 
@@ -768,6 +778,7 @@ def _add_experiment_parser(subparsers) -> None:
                    help="run nothing: join the records of these folders (the same grid, e.g. "
                         "its shards) into --out and write the report")
     _add_offline_solver_argument(p)
+    _add_playback_chain_argument(p)
     p.set_defaults(handler=run_experiment_command)
 
 
@@ -791,7 +802,8 @@ _EXPERIMENT_OPTIONS = {"shapes": "--shapes", "demos": "--demos", "methods": "--m
                        "plant_time_step_s": "--plant-step", "settle_s": "--settle",
                        "sensitivity_shapes": "--sensitivity-shapes",
                        "c8_shapes": "--c8-shapes", "offline_solver": "--solver",
-                       "speeds": "--speeds", "plants": "--plants", "kf_form": "--kf-form"}
+                       "speeds": "--speeds", "plants": "--plants", "kf_form": "--kf-form",
+                       "chain": "--chain"}
 
 
 def _number_list(text: str, option: str) -> tuple[float, ...]:
@@ -839,7 +851,7 @@ def run_experiment_command(args) -> int:
                                   sensitivity_shapes=sensitivity, c8_shapes=c8,
                                   offline_solver=args.solver,
                                   speeds=_number_list(args.speeds, "--speeds"), plants=plants,
-                                  kf_form=args.kf_form)
+                                  kf_form=args.kf_form, chain=args.chain)
     except ValueError as error:
         raise ValueError(name_fields(str(error), _EXPERIMENT_OPTIONS)) from None
     if not 0 <= args.workers <= MAX_WORKERS:

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from telesmooth.atomic_files import atomic_write, write_text
-from telesmooth.diagrams.scenario import describe_operator
+from telesmooth.diagrams.scenario import describe_chain, describe_operator
 from telesmooth.diagrams.simulation import plant_text, tool_positions
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.scripts.formatting import limit_ratio
@@ -34,7 +34,7 @@ from telesmooth.studies.comparison import (
     compare_methods,
 )
 
-__all__ = ["table_markdown", "write_comparison_report"]
+__all__ = ["guard_table_markdown", "table_markdown", "write_comparison_report"]
 
 
 def _log(message: str) -> None:
@@ -92,6 +92,30 @@ def table_markdown(rows) -> str:
             cells.append(f"{row['cartesian_deformation_mean_m'] / least:.2f}" if least > 0
                          else "n/a (offline-hard deforms nothing)")
         lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+_GUARD_COLUMNS = (
+    ("method", "method", "{}"),
+    ("commands", "guard_commands", "{}"),
+    ("limited", "guard_limited", "{}"),
+    ("largest cut [mrad]", "guard_largest_cut_rad", "×1000{:.3g}"),
+    ("farthest from the stream [mrad]", "guard_stream_distance_rad", "×1000{:.3g}"),
+    ("received FD acc max/limit", "received_fd_acc_max_over_limit", "ratio"),
+    ("received FD jerk max/limit", "received_fd_jerk_max_over_limit", "ratio"),
+)
+
+
+def guard_table_markdown(rows) -> str:
+    """What the onboard link guard did to each method's commands (deployed chain): the
+    commands it issued, how many it limited (they differ from the packet they followed), the
+    largest cut (worst joint), the farthest the robot's command got from the newest packet,
+    and the FD acceleration and jerk of what the robot received over their limits."""
+    lines = ["| " + " | ".join(title for title, _, _ in _GUARD_COLUMNS) + " |",
+             "|---|" + "---:|" * (len(_GUARD_COLUMNS) - 1)]
+    for row in rows:
+        lines.append("| " + " | ".join(_cell(row, key, fmt) for _, key, fmt in _GUARD_COLUMNS)
+                     + " |")
     return "\n".join(lines)
 
 
@@ -236,6 +260,8 @@ def _report_text(comparison: Comparison, rows, figures, plant: dict) -> str:
     lines = [
         "# telesmooth compare",
         "",
+        f"Chain: {describe_chain(scenario)}.",
+        "",
         f"Scenario: arm `{scenario.arm}`, operator: {describe_operator(scenario)}; "
         f"{comparison.q_original.shape[0]} operator samples at {comparison.period_s} s "
         f"(the recording and {scenario.settle_s} s of holding still); every method played "
@@ -263,22 +289,41 @@ def _report_text(comparison: Comparison, rows, figures, plant: dict) -> str:
         "limits); reported, not enforced, in this comparison.",
         "",
     ]
+    if comparison.chain == "deployed":
+        lines += [
+            "## What the onboard link guard did",
+            "",
+            "The figures above are of what each method sent; the robot received the guard's "
+            "commands. *Limited*: commands that differ from the packet they followed (the "
+            "guard cut them to keep the limits); *largest cut*: the largest |command − packet| "
+            "of those, worst joint; *farthest from the stream*: the largest distance of the "
+            "robot's command from the newest accepted packet after any poll; *received FD*: "
+            "the finite differences of the guard's commands (after the robot's rest at its "
+            "start pose) over the limits.",
+            "",
+            guard_table_markdown(rows),
+            "",
+        ]
     for title, name in figures:
         lines += [f"## {title}", "", f"![{title}]({name})", ""]
     return "\n".join(lines)
 
 
 def write_comparison_report(out_dir, scenario, *, methods=METHODS,
-                            progress=_log, offline_solver="drake") -> Path:
-    """Runs :func:`compare_methods` and writes the report folder; returns report.md's path."""
+                            progress=_log, offline_solver="drake", chain="paper") -> Path:
+    """Runs :func:`compare_methods` (through ``chain``: ``"paper"`` or ``"deployed"``) and
+    writes the report folder; returns report.md's path."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     comparison = compare_methods(scenario, methods, progress=progress,
-                                 offline_solver=offline_solver)
+                                 offline_solver=offline_solver, chain=chain)
+    scenario = comparison.scenario
     rows = comparison.table()
     plant = comparison.plant()
     data = {
-        "scenario": {"arm": scenario.arm, "haptic_source": scenario.haptic.source,
+        "scenario": {"arm": scenario.arm, "chain": scenario.chain,
+                     "chain_text": describe_chain(scenario),
+                     "haptic_source": scenario.haptic.source,
                      "period_s": comparison.period_s, "num_samples": int(comparison.t_s.size),
                      "duration_s": comparison.duration_s,
                      "joint_names": list(comparison.joint_names)},
@@ -287,7 +332,10 @@ def write_comparison_report(out_dir, scenario, *, methods=METHODS,
         "methods": {name: run.metrics for name, run in comparison.runs.items()},
     }
     write_text(out / "comparison.json", json.dumps(data, indent=2, default=float) + "\n")
-    write_text(out / "table.md", table_markdown(rows) + "\n")
+    table = table_markdown(rows) + "\n"
+    if comparison.chain == "deployed":
+        table += "\nWhat the onboard link guard did:\n\n" + guard_table_markdown(rows) + "\n"
+    write_text(out / "table.md", table)
     _write_packets(out, comparison)
     figures = _write_figures(out, comparison)
     report = out / "report.md"

@@ -31,6 +31,7 @@ import numpy as np
 
 from telesmooth.arms.self_contact import CLEARANCE_M
 from telesmooth.atomic_files import write_text
+from telesmooth.diagrams.scenario import describe_chain
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.scripts.formatting import limit_ratio
 from telesmooth.studies.claims import (
@@ -43,13 +44,15 @@ from telesmooth.studies.claims import (
 from telesmooth.studies.comparison import LEAST_DEFORMATION
 from telesmooth.studies.experiment import (
     ExperimentConfig,
+    experiment_scenario,
     make_tasks,
     run_experiment,
     task_groups,
 )
 from telesmooth.user_input import MAX_JSON_BYTES, read_file_bytes
 
-__all__ = ["code_fingerprint", "grid_fingerprint", "main_table_markdown",
+__all__ = ["code_fingerprint", "grid_fingerprint", "guard_table_markdown",
+           "main_table_markdown",
            "merge_experiment_reports", "read_records", "write_experiment_report"]
 
 
@@ -114,6 +117,31 @@ def main_table_markdown(summary: dict) -> str:
         if least:
             cells.append(_least_deformation_cell(least.get(label)))
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+_GUARD_COLUMNS = (
+    ("commands limited", "guard_limited", 1.0, "{:.1f}"),
+    ("largest cut [mrad]", "guard_largest_cut_rad", 1e3, "{:.3g}"),
+    ("farthest from the stream [mrad]", "guard_stream_distance_rad", 1e3, "{:.3g}"),
+    ("received FD acc max/limit", "received_fd_acc_max_over_limit", 1.0, "ratio"),
+    ("received FD jerk max/limit", "received_fd_jerk_max_over_limit", 1.0, "ratio"),
+)
+
+
+def guard_table_markdown(summary: dict) -> str:
+    """Deployed chain: what the onboard link guard did per method, mean (worst case) over
+    the demonstrations; "" when the runs had no guard (the paper's chain)."""
+    main = summary["main"]
+    if not any("guard_limited" in figures for figures in main.values()):
+        return ""
+    lines = ["| method | " + " | ".join(title for title, *_ in _GUARD_COLUMNS) + " |",
+             "|---|" + "---:|" * len(_GUARD_COLUMNS)]
+    for label, figures in main.items():
+        if "guard_limited" in figures:
+            lines.append(f"| {label} | " + " | ".join(
+                _cell(figures[key], scale, fmt) for _, key, scale, fmt in _GUARD_COLUMNS)
+                + " |")
     return "\n".join(lines)
 
 
@@ -292,6 +320,15 @@ def _cell_section(cell: str, summary: dict, claims: dict, figures, kf_form: str)
                   f"(over the {plant['n']} demonstrations).", ""]
     lines += ["### Main table: mean (worst case) over the demonstrations", "",
               main_table_markdown(summary), ""]
+    guard = guard_table_markdown(summary)
+    if guard:
+        lines += ["### What the onboard link guard did: mean (worst case) over the "
+                  "demonstrations", "",
+                  "The main table's figures are of what each method sent; the robot received "
+                  "the guard's commands. *Limited*: commands that differ from the packet they "
+                  "followed; *largest cut*: the largest |command − packet|, worst joint; "
+                  "*received FD*: the finite differences of the guard's commands over the "
+                  "limits.", "", guard, ""]
     if summary.get("failed"):
         lines += [f"**{len(summary['failed'])} run(s) failed** and are left out of every "
                   "figure of this cell:", ""]
@@ -353,10 +390,24 @@ def _plant_runs_text(meta: dict) -> str:
     return text
 
 
+def _chain_lines(config: ExperimentConfig, meta: dict) -> list[str]:
+    """The first lines of the report: the chain every run was played through, and the
+    records that say another (none, unless the folder was filled by hand)."""
+    lines = [f"Chain: {meta['chain_text']}."]
+    others = {chain: count for chain, count in meta["record_chains"].items()
+              if chain != config.chain}
+    if others:
+        lines[0] += (" **" + ", ".join(f"{count} record(s) say `{chain}`"
+                                       for chain, count in sorted(others.items()))
+                     + "** (kept from another grid).")
+    return lines + [""]
+
+
 def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figures, meta) -> str:
     lines = [
         "# telesmooth experiment: the paper's claims on real human demonstrations",
         "",
+        *_chain_lines(config, meta),
         f"{meta['num_tasks']} tasks ({meta['num_runs']} simulations of the chain"
         + _plant_runs_text(meta)
         + f"); this run computed {meta['computed']} of them on {meta['workers']} in "
@@ -652,7 +703,15 @@ def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, 
     claims = {cell: check_claims(summary, config.kf_form)
               for cell, summary in summaries.items()}
     mapping = base.haptic.lasa_mapping
+    chains: dict[str, int] = {}
+    for record in records:
+        if record["kind"] == "run":
+            # Records kept from before the field existed ran the paper's chain.
+            chain = record.get("chain", "paper")
+            chains[chain] = chains.get(chain, 0) + 1
     meta = {**meta, "num_tasks": len(tasks), "num_runs": sum(t.kind == "run" for t in tasks),
+            "chain": config.chain, "record_chains": chains,
+            "chain_text": describe_chain(experiment_scenario(base, config, "Angle", 0)),
             **_plant_run_counts(records),
             "missing": missing,
             "mapping": ", ".join(f"{f.name} = {getattr(mapping, f.name)}"

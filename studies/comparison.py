@@ -17,6 +17,17 @@ errors are comparable. The online chain's pass-through, BMFLS and Online-CKS mod
 the packets built here when the pre-simulator never holds (``tests/test_comparison.py`` checks
 Online-CKS against :func:`~telesmooth.diagrams.simulation.simulate`).
 
+The chain (``chain`` of :func:`compare_methods` and :func:`prepare_comparison`; the setup's
+scenario carries it). ``"paper"`` (default): the uplink drives the robot directly, as in the
+paper. ``"deployed"``: each method's packets go through the onboard receiver and the onboard
+link guard to the robot, as the deployed chain runs them
+(:func:`~telesmooth.diagrams.offline_playback.play_path`); the figures of the commands stay
+those of what the method sent, e is read when the robot has reached each command (a ramp
+after the robot began to move towards it, behind the link and the guard:
+:func:`~telesmooth.diagrams.simulation.response_instants`), and ``metrics["guard"]`` says
+what the guard did (:func:`~telesmooth.diagrams.simulation.guard_metrics`: the commands it
+limited, the largest cut, the FD acceleration and jerk of what the robot received).
+
 Metrics per method (index i = operator sample, 0 ≤ i < N):
 
 * ``fd_acceleration`` / ``fd_jerk``: finite differences of the packet sequence *as the plant
@@ -59,13 +70,19 @@ import numpy as np
 from telesmooth.arms.collision import ArmCollisionModel
 from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.arms.self_contact import SelfContactCheck
-from telesmooth.diagrams.offline_playback import play_path
+from telesmooth.diagrams.offline_playback import (
+    play_path,
+    playback_guard_record,
+    ramp_start_times,
+)
 from telesmooth.diagrams.offline_validation import validate_joint_path
-from telesmooth.diagrams.scenario import Scenario, make_haptic_recording
+from telesmooth.diagrams.scenario import CHAINS, Scenario, make_haptic_recording
 from telesmooth.diagrams.session_sampling import joint_targets_at_uplink_rate, recording_ticks
 from telesmooth.diagrams.simulation import (
+    guard_metrics,
     plant_summary,
     response_delay_s,
+    response_instants,
     sample_at,
     tool_positions,
 )
@@ -189,6 +206,8 @@ class Comparison:
                                 doc="a_max per joint (scenario.smoother), (J,).")
     max_jerk = property(lambda self: self.setup.max_jerk,
                         doc="j_max per joint (scenario.smoother), (J,).")
+    chain = property(lambda self: self.setup.scenario.chain,
+                     doc='The chain every method was played through ("paper" or "deployed").')
 
     def plant(self) -> dict:
         """The plant every method ran on, with its vibration modes (:func:`plant_summary`)."""
@@ -234,6 +253,25 @@ def run_summary(metrics: dict) -> dict:
         "latency_s": metrics["latency_s"],
         "link_deflection_max_rad": float(np.max(metrics["link_deflection_max_abs_rad"])),
         "presim_violations": metrics["presim_violations"]["total"],
+        **_guard_summary(metrics.get("guard")),
+    }
+
+
+def _guard_summary(guard: dict | None) -> dict:
+    """The guard's figures of a deployed run as flat row entries (none in the paper's chain):
+    commands issued and limited, the largest cut (worst joint), the largest distance from the
+    stream, and the FD acceleration and jerk of what the robot received over their limits."""
+    if guard is None:
+        return {}
+    received = guard["received"]
+    return {
+        "guard_commands": guard["commands"],
+        "guard_limited": guard["limited"],
+        "guard_largest_cut_rad": float(np.max(guard["largest_cut_rad"])),
+        "guard_stream_distance_rad": guard["stream_distance_rad"],
+        "received_fd_acc_max_over_limit": float(np.max(
+            received["fd_acceleration"]["max_over_limit"])),
+        "received_fd_jerk_max_over_limit": float(np.max(received["fd_jerk"]["max_over_limit"])),
     }
 
 
@@ -273,7 +311,7 @@ class ComparisonSetup:
     Built once per scenario by :func:`prepare_comparison`; :func:`run_method` plays one method.
 
     Attributes:
-        scenario: The scenario.
+        scenario: The scenario; its ``chain`` is the chain every method is played through.
         joint_names: Joint order, (J,).
         period_s: Δt, s.
         t_s: Operator sample times t_i, s, (N,) (the recording and ``settle_s`` of holding).
@@ -343,17 +381,22 @@ def operator_samples(scenario: Scenario) -> OperatorSamples:
                            num_operator_samples=num_operator_samples)
 
 
-def prepare_comparison(scenario: Scenario,
-                       samples: OperatorSamples | None = None) -> ComparisonSetup:
+def prepare_comparison(scenario: Scenario, samples: OperatorSamples | None = None, *,
+                       chain: str = "paper") -> ComparisonSetup:
     """The operator's samples at the uplink rate and everything the methods share.
 
     Args:
         scenario: The scenario.
         samples: Its :func:`operator_samples`, if already computed.
+        chain: ``"paper"`` (default: the uplink drives the robot, as in the paper) or
+            ``"deployed"`` (through the onboard receiver and link guard): the setup's
+            scenario is ``scenario`` with this chain, whatever chain it had.
 
     Raises:
-        ValueError: A scenario without a recording (``haptic.source = 'lcm'``).
+        ValueError: A scenario without a recording (``haptic.source = 'lcm'``), an unknown
+            chain, or link faults with the paper's chain.
     """
+    scenario = _with_chain(scenario, chain)
     if samples is None:
         samples = operator_samples(scenario)
     arm = scenario.arm_description
@@ -380,6 +423,13 @@ def prepare_comparison(scenario: Scenario,
         ramp_s=ramp, max_acceleration=a_max, max_jerk=j_max,
         operator_tool_m=tool_positions(scenario, z),
         collision_model=collision_model)
+
+
+def _with_chain(scenario: Scenario, chain: str) -> Scenario:
+    """``scenario`` with ``chain`` (the same object if it has it already)."""
+    if chain not in CHAINS:
+        raise ValueError(f"chain = {chain!r} must be one of {CHAINS}")
+    return scenario if scenario.chain == chain else dataclasses.replace(scenario, chain=chain)
 
 
 def response_latency(operator_tool_m, t_s, tracker_t_s, tool_position_m, *,
@@ -462,14 +512,16 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
     packets = packet_states[:, :, 0]
     smoothed = time.perf_counter()
 
+    deployed = scenario.chain == "deployed"
     key = None if playbacks is None else _playback_key(setup, packet_states)
     reused = key is not None and key in playbacks
     if reused:
         logs, self_contact = playbacks[key]
     else:
-        logs, self_contact = play_path(scenario, packets, states=packet_states,
-                                       q_start=q_start, duration_s=setup.duration_s,
-                                       name=f"compare_{label}")
+        logs, self_contact = play_path(
+            scenario, packets, states=packet_states, q_start=q_start,
+            duration_s=setup.duration_s, name=f"compare_{label}", chain=scenario.chain,
+            collision_model=setup.collision_model if deployed else None)
         if playbacks is not None:
             playbacks[key] = (_read_only(logs), self_contact)
     simulated = time.perf_counter()
@@ -478,7 +530,13 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
     tracker = logs["tracker"]
     tracker_t = tracker.t_s
     tool = tracker.tool_position_m
-    response_t = (np.arange(num_samples) + delay) * period + ramp
+    if deployed:
+        # Behind the link and the guard the robot begins to move towards packet k at the
+        # interpolator's poll after the guard's command: read it a ramp after that.
+        response_t = response_instants(period * np.arange(len(packets)),
+                                       ramp_start_times(logs), ramp)[delay:]
+    else:
+        response_t = (np.arange(num_samples) + delay) * period + ramp
     measured = sample_at(tracker_t, tool, response_t)
     e = tracking_errors(fk(estimate), measured)
     e_operator = tracking_errors(setup.operator_tool_m, measured)
@@ -501,7 +559,8 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
     # packet carrying the operator's last sample has been reached.
     num_operator_samples = setup.num_operator_samples
     distance_to_final = np.linalg.norm(tool - fk(packets[-1]), axis=-1)
-    after = tracker_t >= (num_operator_samples - 1 + delay) * period + ramp
+    after = tracker_t >= (response_t[num_operator_samples - 1] if deployed else
+                          (num_operator_samples - 1 + delay) * period + ramp)
     metrics["residual_motion_m"] = float(distance_to_final[after].max()) \
         if after.any() else math.nan
     outside = np.flatnonzero(distance_to_final > SETTLED_TOLERANCE_M)
@@ -525,6 +584,11 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
              for kind in ("non_finite", "joint_limit", "collision")}
     metrics["presim_violations"] = {**kinds, "total": len(violations)}
     metrics["delay_s"] = delay * period
+    metrics["chain"] = scenario.chain
+    metrics["guard"] = (guard_metrics(_GuardedRun(
+        guard=playback_guard_record(logs, scenario.command_receiver.poll_period_s),
+        scenario=scenario, num_joints=n, joint_names=names, initial_position_rad=q_start))
+        if deployed else None)
     metrics["details"] = result.details
     timings = {"smooth": smoothed - started, "simulate": simulated - smoothed}
     metrics["timings_s"] = timings
@@ -534,6 +598,19 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
         q_link=tracker.q_link, q_motor=tracker.q_motor, response_error_m=e,
         operator_error_m=e_operator, metrics=metrics, timings_s=timings,
         playback_reused=reused, self_contact=self_contact)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _GuardedRun:
+    """What :func:`~telesmooth.diagrams.simulation.guard_metrics` reads of a run (the fields
+    of a :class:`~telesmooth.diagrams.simulation.SimulationRecord` it uses): the guard's
+    record, the scenario (limits, uplink period), the joints and the robot's start pose."""
+
+    guard: object
+    scenario: Scenario
+    num_joints: int
+    joint_names: tuple
+    initial_position_rad: np.ndarray
 
 
 def _playback_key(setup: ComparisonSetup, packet_states: np.ndarray) -> tuple:
@@ -577,11 +654,14 @@ def set_improvement_ratios(runs: dict, reference: str = _REFERENCE) -> None:
 
 def compare_methods(scenario: Scenario, methods=METHODS, *,
                     progress: Callable[[str], None] | None = None,
-                    offline_solver: str = "drake") -> Comparison:
+                    offline_solver: str = "drake", chain: str = "paper") -> Comparison:
     """Runs each method on the scenario's recorded session through the same plant.
 
     Args:
         scenario: A scenario with a recorded session (not ``haptic.source = 'lcm'``).
+        chain: ``"paper"`` (default: the paper's chain, the uplink drives the robot) or
+            ``"deployed"`` (each method's packets through the onboard receiver and link
+            guard); the scenario's own ``chain`` is not read.
         methods: Names from :data:`~telesmooth.smoothing.methods.METHODS` (or their aliases);
             ``original`` is always run (it is the
             reference of P) and comes first.
@@ -608,7 +688,7 @@ def compare_methods(scenario: Scenario, methods=METHODS, *,
         raise ValueError(f"offline_solver = {offline_solver!r} must be one of {OFFLINE_SOLVERS}")
     methods = (_REFERENCE,) + tuple(m for m in methods if m != _REFERENCE)
     say = progress or (lambda message: None)
-    setup = prepare_comparison(scenario)
+    setup = prepare_comparison(scenario, chain=chain)
     runs = {}
     playbacks = {}
     for number, method in enumerate(methods, start=1):

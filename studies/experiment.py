@@ -26,6 +26,12 @@ uplink and flexible-joint plant. The limits are those of the base scenario (Defa
 a_max = 0.05 rad/s², j_max = 0.1 rad/s³ on every joint), which the raw operator data violate on
 almost every demonstration (the report gives the fraction).
 
+The chain (:attr:`ExperimentConfig.chain`): ``"paper"`` (default) plays every method's
+commands as the paper does, the uplink driving the robot directly; ``"deployed"`` plays them
+through the onboard receiver and link guard
+(:func:`~telesmooth.studies.comparison.prepare_comparison`). It is part of the grid (a folder
+holds the records of one chain) and every record says which it ran.
+
 Tasks are independent and deterministic: the same task gives the same figures on any worker, and
 :func:`run_experiment` orders the results by task, so the output does not depend on the number
 of workers (``tests/test_experiment.py``). The tasks of one demonstration run together
@@ -112,6 +118,10 @@ class ExperimentConfig:
             the base scenario's other drive fields are kept).
         kf_form: The KF form every claim uses (:data:`KF_FORMS`); the other is reported
             beside it where both ran.
+        chain: The chain every method's commands are played through
+            (:data:`~telesmooth.diagrams.scenario.CHAINS`): ``"paper"`` (default: the uplink
+            drives the robot directly, the paper's set-up) or ``"deployed"`` (through the
+            onboard receiver and link guard); the base scenario's own ``chain`` is not read.
     """
 
     shapes: tuple[str, ...] = LASA_SHAPES
@@ -128,9 +138,14 @@ class ExperimentConfig:
     speeds: tuple[float, ...] = (1.0,)
     plants: tuple[str, ...] = ("lab",)
     kf_form: str = "kf"
+    chain: str = "paper"
 
     def __post_init__(self) -> None:
         from telesmooth.arms.description import PLANT_PRESETS
+        from telesmooth.diagrams.scenario import CHAINS
+
+        if self.chain not in CHAINS:
+            raise ValueError(f"chain = {self.chain!r} must be one of {CHAINS}")
 
         if not self.speeds or len(set(self.speeds)) != len(self.speeds) or not all(
                 isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
@@ -223,7 +238,7 @@ def experiment_scenario(base: Scenario, config: ExperimentConfig, shape: str, de
                         seed: int = 0, *, plant: str = "lab", speed: float = 1.0) -> Scenario:
     """The base scenario replaying one LASA demonstration at ``speed`` × the demonstrator's
     hand speed (whatever time scale the base has: the default time scale, 10, is the hand's
-    speed), on the ``plant`` drive preset, with the experiment's plant step."""
+    speed), on the ``plant`` drive preset, with the experiment's plant step and chain."""
     mapping = dataclasses.replace(base.haptic.lasa_mapping,
                                   time_scale=WorkspaceMapping().time_scale / speed)
     haptic = dataclasses.replace(base.haptic, source="lasa", lasa_shape=shape, lasa_demo=demo,
@@ -234,7 +249,8 @@ def experiment_scenario(base: Scenario, config: ExperimentConfig, shape: str, de
         base.onboard, time_step_s=step,
         tracker=dataclasses.replace(base.onboard.tracker, seed=seed),
         drive=dataclasses.replace(base.onboard.drive, preset=plant))
-    return dataclasses.replace(base, haptic=haptic, onboard=onboard, settle_s=config.settle_s)
+    return dataclasses.replace(base, haptic=haptic, onboard=onboard, settle_s=config.settle_s,
+                               chain=config.chain)
 
 
 def make_tasks(config: ExperimentConfig) -> list[ExperimentTask]:
@@ -400,7 +416,7 @@ def iter_task_group(tasks: Sequence[ExperimentTask], base: Scenario,
         if task.kind == "run" and setup is None:
             scenario = experiment_scenario(base, config, task.shape, task.demo, task.seed,
                                            plant=task.plant, speed=task.speed)
-            setup = prepare_comparison(scenario, _samples(scenario))
+            setup = prepare_comparison(scenario, _samples(scenario), chain=config.chain)
         yield _task_record(task, base, config, setup, playbacks, started)
 
 
@@ -409,7 +425,8 @@ def _task_record(task: ExperimentTask, base: Scenario, config: ExperimentConfig,
     record = {"index": task.index, "key": task.key, "kind": task.kind, "shape": task.shape,
               "demo": task.demo, "method": task.method, "label": task.label,
               "study": task.study, "value": None if math.isnan(task.value) else task.value,
-              "seed": task.seed, "plant": task.plant, "speed": task.speed}
+              "seed": task.seed, "plant": task.plant, "speed": task.speed,
+              "chain": config.chain}
     if task.kind == "c8":
         record["c8"] = _c8_record(base, config, task)
     else:

@@ -198,14 +198,20 @@ def test_cli_solver_reaches_the_comparison(tmp_path, monkeypatch):
 
     seen = {}
 
-    def fake(out, scenario, *, methods, offline_solver):
-        seen.update(methods=methods, offline_solver=offline_solver)
+    def fake(out, scenario, *, methods, offline_solver, chain):
+        seen.update(methods=methods, offline_solver=offline_solver, chain=chain,
+                    scenario_chain=scenario.chain)
         return out / "report.md"
 
     monkeypatch.setattr(compare_report, "write_comparison_report", fake)
     code = main(["compare", "--methods", "offline-cks", "--solver", "banded-ip", "--out",
                  str(tmp_path / "x")])
-    assert code == 0 and seen == {"methods": ("offline-cks",), "offline_solver": "banded-ip"}
+    # The paper's chain by default, whatever the scenario's (deployed by default).
+    assert code == 0 and seen == {"methods": ("offline-cks",), "offline_solver": "banded-ip",
+                                  "chain": "paper", "scenario_chain": "paper"}
+    code = main(["compare", "--methods", "offline-cks", "--chain", "deployed", "--out",
+                 str(tmp_path / "y")])
+    assert code == 0 and seen["chain"] == "deployed" and seen["scenario_chain"] == "deployed"
 
 
 def test_cli_unknown_method_exits_2(tmp_path, capsys):
