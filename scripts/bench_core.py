@@ -18,9 +18,15 @@ the row's input data: the "baseline"):
 * Simulation: the real-time factor (simulated / wall time, and simulated / CPU time of the
   process, both over the simulator's advance alone; and simulated / wall time of the whole
   call, with the diagram's build and reading the logs back) of ``telesmooth simulate``'s chain
-  on Defaults (planar arm) and OneOfEverything (6-DOF arm), beside the bare plant's (the
-  flexible arm's MultibodyPlant alone, following a smooth set-point from a C++ source) at a
-  1 ms step, a 5 ms step and the default plant (continuous), and the share of each stage of the
+  on Defaults (planar arm) and OneOfEverything (6-DOF arm), the deployed chain (what
+  ``simulate`` runs by default: the onboard receiver and link guard between the uplink and the
+  robot) and the paper's chain (``--chain paper``: the uplink drives the robot) each a row of
+  its own, beside the bare plant's (the flexible arm's MultibodyPlant alone, following a
+  smooth set-point from a C++ source) at a 1 ms step, a 5 ms step and the default plant
+  (continuous). Each chain row gives its real-time factor over the bare plant's of the same
+  arm and plant step measured in the same run (:func:`over_bare_plant`, wall and CPU): the
+  figure that carries from machine to machine, where the absolute factors do not. And the
+  share of each stage of the
   chain: the CPU time spent inside each Python system's callbacks (timers around every
   callback a LeafSystem declares, nested calls counted once), and the rest, Drake's own work
   (plant, integrator, events, loggers).
@@ -60,6 +66,10 @@ MAX_JERK = 0.1
 
 CHAIN_SCENARIOS = ("Defaults", "OneOfEverything")
 """The scenarios whose chain ``telesmooth simulate`` runs in the simulation rows."""
+
+CHAINS_TIMED = ("deployed", "paper")
+"""The chains of the simulation rows, each scenario's: the deployed chain (``simulate``'s
+default) and the paper's (``simulate --chain paper``)."""
 
 BARE_PLANT_STEPS_S = (1e-3, 5e-3, 0.0)
 """Plant steps of the bare-plant rows: 1 ms and 5 ms discrete, and continuous (default)."""
@@ -415,25 +425,38 @@ class CallbackTimers:
         return False
 
 
-def _load_chain_scenario(name: str):
+def _load_chain_scenario(name: str, chain: str = "deployed"):
+    import dataclasses
+
     from telesmooth.diagrams.scenario import load_scenario
 
-    return load_scenario(scenario_name=name)
+    return dataclasses.replace(load_scenario(scenario_name=name), chain=chain)
 
 
-def _chain_cell(name: str, duration_s: float | None) -> dict:
-    """``simulate`` of the scenario's chain: real-time factors of the run (wall and this
-    process's CPU over the simulator's advance alone, the window the bare plant's rows
+def _chain_cell(name: str, duration_s: float | None, chain: str = "deployed") -> dict:
+    """``simulate`` of the scenario through ``chain``: real-time factors of the run (wall and
+    this process's CPU over the simulator's advance alone, the window the bare plant's rows
     measure) and of the whole call (build, run and reading the logs back)."""
     from telesmooth.diagrams.simulation import simulate
 
-    scenario = _load_chain_scenario(name)
+    scenario = _load_chain_scenario(name, chain)
     call_wall, call_cpu = time.perf_counter(), time.process_time()
     record = simulate(scenario, duration_s=duration_s)
     call_wall, call_cpu = time.perf_counter() - call_wall, time.process_time() - call_cpu
-    return {"scenario": name, "time_step_s": scenario.onboard.time_step_s, "arm": scenario.arm,
+    return {"scenario": name, "chain": scenario.chain,
+            "time_step_s": scenario.onboard.time_step_s, "arm": scenario.arm,
             **chain_speed(record.duration_s, record.wall_time_s, record.cpu_time_s,
                           call_wall, call_cpu)}
+
+
+def over_bare_plant(chain: dict, bare: dict) -> dict:
+    """A chain row's real-time factors over the bare plant's (same arm, same plant step,
+    measured in the same run): chain / bare, from the wall and from the CPU time. The ratio
+    is what the chain's Python stages and events cost on top of the plant, and carries from
+    one machine to another where the absolute factors do not."""
+    return {"over_bare_plant_wall": chain["real_time_factor"] / bare["real_time_factor"],
+            "over_bare_plant_cpu": (chain["real_time_factor_cpu"]
+                                    / bare["real_time_factor_cpu"])}
 
 
 def chain_speed(simulated_s: float, wall_s: float, cpu_s: float, call_wall_s: float,
@@ -450,13 +473,13 @@ def _run_speed(simulated_s: float, wall_s: float, cpu_s: float) -> dict:
             "real_time_factor": simulated_s / wall_s, "real_time_factor_cpu": simulated_s / cpu_s}
 
 
-def _chain_shares_cell(name: str, duration_s: float | None) -> dict:
+def _chain_shares_cell(name: str, duration_s: float | None, chain: str = "deployed") -> dict:
     """The chain run again with a timer around every Python callback: CPU time per stage."""
     from telesmooth.diagrams.simulation import run_duration_s
     from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram
     from telesmooth.systems.flexible_arm import make_simulator
 
-    scenario = _load_chain_scenario(name)
+    scenario = _load_chain_scenario(name, chain)
     with CallbackTimers() as timers:
         handles = MakeTeleoperationDiagram(scenario)
     duration = run_duration_s(scenario, handles.ground.recording, duration_s)
@@ -520,27 +543,45 @@ def bench_simulation(duration_s: float | None, bare_duration_s: float = 20.0):
                   flush=True)
     chains = []
     for name in CHAIN_SCENARIOS:
-        row = in_fresh_process(_chain_cell, name, duration_s)
-        shares = in_fresh_process(_chain_shares_cell, name, duration_s)
-        row["stage_cpu_s"] = shares["python_s"]
-        row["stage_calls"] = shares["calls"]
-        row["drake_cpu_s"] = shares["drake_s"]
-        row["instrumented_cpu_s"] = shares["cpu_s"]
-        row["stage_share"] = {stage: seconds / shares["cpu_s"]
-                              for stage, seconds in shares["python_s"].items()}
-        row["stage_share"]["Drake (plant, integrator, events, loggers)"] = (
-            shares["drake_s"] / shares["cpu_s"])
-        for reference in bare:
-            if reference["arm"] == row["arm"]:
-                key = f"over_bare_plant_{_step_key(reference['time_step_s'])}"
-                row[key] = row["real_time_factor_cpu"] / reference["real_time_factor_cpu"]
-        chains.append(row)
-        print(f"  simulate {name}: {row['simulated_s']:.1f} s in {row['wall_s']:.2f} s "
-              f"(×{row['real_time_factor']:.1f} real time, ×{row['real_time_factor_cpu']:.1f} "
-              f"CPU; the whole call with build and logs {row['call_wall_s']:.2f} s, "
-              f"×{row['call_real_time_factor']:.1f}; {row['peak_rss_mb']:.0f} MB)",
-              file=sys.stderr, flush=True)
+        for chain in CHAINS_TIMED:
+            row = in_fresh_process(_chain_cell, name, duration_s, chain)
+            shares = in_fresh_process(_chain_shares_cell, name, duration_s, chain)
+            add_bare_plant_ratios(row, bare)
+            row["stage_cpu_s"] = shares["python_s"]
+            row["stage_calls"] = shares["calls"]
+            row["drake_cpu_s"] = shares["drake_s"]
+            row["instrumented_cpu_s"] = shares["cpu_s"]
+            row["stage_share"] = {stage: seconds / shares["cpu_s"]
+                                  for stage, seconds in shares["python_s"].items()}
+            row["stage_share"]["Drake (plant, integrator, events, loggers)"] = (
+                shares["drake_s"] / shares["cpu_s"])
+            chains.append(row)
+            print(f"  simulate {name}, {chain} chain: {row['simulated_s']:.1f} s in "
+                  f"{row['wall_s']:.2f} s (×{row['real_time_factor']:.1f} real time, "
+                  f"×{row['real_time_factor_cpu']:.1f} CPU; "
+                  f"{_ratio_text(row.get('over_bare_plant_wall'))} of the bare plant's wall "
+                  f"factor, {_ratio_text(row.get('over_bare_plant_cpu'))} of its CPU factor; "
+                  f"the whole call with build and logs {row['call_wall_s']:.2f} s, "
+                  f"×{row['call_real_time_factor']:.1f}; {row['peak_rss_mb']:.0f} MB)",
+                  file=sys.stderr, flush=True)
     return {"bare_plant": bare, "chain": chains}
+
+
+def add_bare_plant_ratios(row: dict, bare: list[dict]) -> None:
+    """Adds to a chain row its ratios over the bare plant of its arm: at its own plant step
+    (``over_bare_plant_wall``/``_cpu``, :func:`over_bare_plant`) and, CPU, at each step
+    measured (``over_bare_plant_<step>``)."""
+    for reference in bare:
+        if reference["arm"] != row["arm"]:
+            continue
+        key = f"over_bare_plant_{_step_key(reference['time_step_s'])}"
+        row[key] = row["real_time_factor_cpu"] / reference["real_time_factor_cpu"]
+        if reference["time_step_s"] == row["time_step_s"]:
+            row.update(over_bare_plant(row, reference))
+
+
+def _ratio_text(ratio) -> str:
+    return "–" if ratio is None else f"{ratio:.3g}"
 
 
 def _step_key(step: float) -> str:
@@ -751,27 +792,32 @@ def _table(offline, online, simulation=None, experiment=None) -> str:
     if simulation:
         lines += ["", "Simulation speed: real-time factor = simulated / wall time (and / CPU "
                   "time of the row's process) of the simulator's advance; the whole call adds "
-                  "the diagram's build and reading the logs back; peak RSS of the row's process",
-                  "", "| what | plant | simulated [s] | wall [s] | ×real time | "
-                  "×real time (CPU) | whole call [s] | ×real time (whole call) | "
-                  "chain / bare plant 1 ms (CPU) | chain / bare default plant (CPU) | "
-                  "peak [MB] |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+                  "the diagram's build and reading the logs back; *chain / bare plant*: the "
+                  "chain's real-time factor over the bare plant's of the same arm and plant "
+                  "step in this run (from the wall and from the CPU time: the ratio carries "
+                  "from machine to machine, the factors do not); peak RSS of the row's process",
+                  "", "| what | chain | plant | simulated [s] | wall [s] | ×real time | "
+                  "×real time (CPU) | chain / bare plant | chain / bare plant (CPU) | "
+                  "whole call [s] | ×real time (whole call) | peak [MB] |",
+                  "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
         for r in simulation["bare_plant"]:
-            lines.append(f"| bare plant, {r['arm']} | {_step_text(r['time_step_s'])} | "
+            lines.append(f"| bare plant, {r['arm']} | – | {_step_text(r['time_step_s'])} | "
                          f"{r['simulated_s']:.1f} | {r['wall_s']:.2f} | "
                          f"{r['real_time_factor']:.1f} | {r['real_time_factor_cpu']:.1f} | – | – "
                          f"| – | – | {r['peak_rss_mb']:.0f} |")
         for r in simulation["chain"]:
             lines.append(f"| `telesmooth simulate`, {r['scenario']} ({r['arm']}) | "
+                         f"{r.get('chain', 'deployed')} | "
                          f"{_step_text(r['time_step_s'])} | {r['simulated_s']:.1f} | "
                          f"{r['wall_s']:.2f} | {r['real_time_factor']:.1f} | "
-                         f"{r['real_time_factor_cpu']:.1f} | {r['call_wall_s']:.2f} | "
-                         f"{r['call_real_time_factor']:.1f} | "
-                         f"{cell(r, 'over_bare_plant_1ms', '{:.2f}')} | "
-                         f"{cell(r, 'over_bare_plant_continuous', '{:.2f}')} | "
+                         f"{r['real_time_factor_cpu']:.1f} | "
+                         f"{cell(r, 'over_bare_plant_wall', '{:.3g}')} | "
+                         f"{cell(r, 'over_bare_plant_cpu', '{:.3g}')} | "
+                         f"{r['call_wall_s']:.2f} | {r['call_real_time_factor']:.1f} | "
                          f"{r['peak_rss_mb']:.0f} |")
         for r in simulation["chain"]:
-            lines += ["", f"Stages of the {r['scenario']} chain: share of the CPU time of an "
+            lines += ["", f"Stages of the {r['scenario']} chain ({r.get('chain', 'deployed')}): "
+                      f"share of the CPU time of an "
                       f"instrumented run ({r['instrumented_cpu_s']:.2f} s for "
                       f"{r['simulated_s']:.1f} s simulated)", "",
                       "| stage | CPU [s] | share | calls |", "|---|---:|---:|---:|"]

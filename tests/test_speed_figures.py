@@ -127,3 +127,78 @@ def test_the_simulation_table_puts_each_figure_under_its_own_header():
             assert cells["×real time"] == "80.0" and cells["×real time (CPU)"] == "79.0"
             assert cells["whole call [s]"] == "–"
         assert cells["peak [MB]"] in ("200", "316")
+
+
+def test_each_chain_row_runs_its_chain_and_is_set_over_the_bare_plant_of_its_arm(monkeypatch):
+    """Every scenario is timed through the deployed chain (``simulate``'s default) and the
+    paper's, each row over the bare plant of its arm and plant step measured in the same run:
+    planted figures, known ratios (the deployed Defaults run: 8 s simulated in 0.5 s wall,
+    0.4 s CPU, against a bare plant at 400× wall and 500× CPU: 16 / 400 = 0.04 and
+    20 / 500 = 0.04)."""
+    outside_s = 0.05
+    seen = []
+    timings = {"deployed": (0.5, 0.4), "paper": (0.25, 0.2)}
+
+    def fake_simulate(scenario, duration_s=None):
+        _burn_cpu(outside_s)
+        seen.append((scenario.arm, scenario.chain))
+        wall, cpu = timings[scenario.chain]
+        return SimpleNamespace(duration_s=8.0, wall_time_s=wall, cpu_time_s=cpu)
+
+    bare_factors = {("air_bearing_arm", 0.0): (400.0, 500.0),
+                    ("space_arm", 0.0): (100.0, 125.0)}
+
+    def fake_bare(arm, time_step_s, duration_s):
+        wall, cpu = bare_factors.get((arm, time_step_s), (1000.0, 1000.0))
+        return {"arm": arm, "time_step_s": time_step_s,
+                **bench_core._run_speed(duration_s, duration_s / wall, duration_s / cpu)}
+
+    def fake_shares(name, duration_s, chain):
+        return {"python_s": {}, "calls": {}, "drake_s": 0.1, "cpu_s": 0.1}
+
+    monkeypatch.setattr(simulation, "simulate", fake_simulate)
+    monkeypatch.setattr(bench_core, "_bare_plant_cell", fake_bare)
+    monkeypatch.setattr(bench_core, "_chain_shares_cell", fake_shares)
+    monkeypatch.setattr(bench_core, "in_fresh_process",
+                        lambda function, *args: {**function(*args), "peak_rss_mb": 1.0})
+    result = bench_core.bench_simulation(None, bare_duration_s=20.0)
+    rows = result["chain"]
+    assert [(r["scenario"], r["chain"]) for r in rows] == [
+        ("Defaults", "deployed"), ("Defaults", "paper"),
+        ("OneOfEverything", "deployed"), ("OneOfEverything", "paper")]
+    assert seen == [("air_bearing_arm", "deployed"), ("air_bearing_arm", "paper"),
+                    ("space_arm", "deployed"), ("space_arm", "paper")]
+    expected = {("Defaults", "deployed"): (16.0 / 400, 20.0 / 500),
+                ("Defaults", "paper"): (32.0 / 400, 40.0 / 500),
+                ("OneOfEverything", "deployed"): (16.0 / 100, 20.0 / 125),
+                ("OneOfEverything", "paper"): (32.0 / 100, 40.0 / 125)}
+    for row in rows:
+        wall, cpu = expected[(row["scenario"], row["chain"])]
+        assert row["over_bare_plant_wall"] == pytest.approx(wall, rel=1e-12)
+        assert row["over_bare_plant_cpu"] == pytest.approx(cpu, rel=1e-12)
+        assert row["call_wall_s"] >= outside_s      # the planted build: the whole call only
+    # The printed table: each ratio under its header, each chain on its own row.
+    lines = bench_core._table([], [], result).splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("| what |"))
+    header = [cell.strip() for cell in lines[start].strip("|").split("|")]
+    printed = {}
+    for line in lines[start + 2:]:
+        if not line.startswith("| "):
+            break
+        cells = dict(zip(header, (c.strip() for c in line.strip("|").split("|")), strict=True))
+        printed[(cells["what"], cells["chain"])] = cells
+    deployed = printed[("`telesmooth simulate`, Defaults (air_bearing_arm)", "deployed")]
+    assert deployed["chain / bare plant"] == "0.04"
+    assert deployed["chain / bare plant (CPU)"] == "0.04"
+    assert deployed["×real time"] == "16.0"
+    paper = printed[("`telesmooth simulate`, OneOfEverything (space_arm)", "paper")]
+    assert paper["chain / bare plant"] == "0.32" and paper["chain / bare plant (CPU)"] == "0.32"
+    bare = printed[("bare plant, space_arm", "–")]
+    assert bare["×real time"] == "100.0" and bare["chain / bare plant"] == "–"
+
+
+def test_over_bare_plant_known_ratios():
+    chain = bench_core.chain_speed(10.0, 0.5, 0.4, 2.0, 1.9)          # 20× wall, 25× CPU
+    bare = bench_core._run_speed(20.0, 0.05, 0.04)                     # 400× wall, 500× CPU
+    assert bench_core.over_bare_plant(chain, bare) == pytest.approx(
+        {"over_bare_plant_wall": 0.05, "over_bare_plant_cpu": 0.05}, rel=1e-12)
