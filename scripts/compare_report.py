@@ -34,31 +34,42 @@ from telesmooth.studies.comparison import (
     compare_methods,
 )
 
-__all__ = ["guard_table_markdown", "table_markdown", "write_comparison_report"]
+__all__ = ["SUMMARY_LOG_PANELS", "TABLES", "comparison_table", "guard_table_markdown",
+           "summary_figure", "table_markdown", "write_comparison_report"]
 
 
 def _log(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
-_COLUMNS = (
-    ("method", "method", "{}"),
-    ("delay [s]", "delay_s", "{:.2f}"),
+_LIMITS = (
     ("FD acc max/limit", "fd_acc_max_over_limit", "ratio"),
     ("FD acc over", "fd_acc_fraction_over", "{:.1%}"),
     ("FD jerk max/limit", "fd_jerk_max_over_limit", "ratio"),
     ("FD jerk over", "fd_jerk_fraction_over", "{:.1%}"),
+    ("pre-sim violations", "presim_violations", "{}"),
+)
+_ACCURACY = (
     ("joint def. mean [mrad]", "position_deformation_mean_rad", "×1000{:.2f}"),
     ("E_def mean / max [mm]", ("cartesian_deformation_mean_m", "cartesian_deformation_max_m"),
      "×1000{:.2f} / {:.2f}"),
+    (f"E_def / {LEAST_DEFORMATION}", "cartesian_deformation_mean_m", "least"),
     ("e mean / max [mm]", ("e_mean_m", "e_max_m"), "×1000{:.3f} / {:.3f}"),
     ("P [%]", "improvement_ratio_percent", "{:.1f}"),
     ("vs operator mean [mm]", "operator_error_mean_m", "×1000{:.3f}"),
+)
+_TIMING = (
+    ("delay [s]", "delay_s", "{:.2f}"),
+    ("added latency [s]", "added_latency_s", "{:.2f}"),
     ("residual motion [mm]", "residual_motion_m", "×1000{:.3f}"),
     ("settling [s]", "settling_time_s", "settling"),
-    ("added latency [s]", "added_latency_s", "{:.2f}"),
-    ("pre-sim violations", "presim_violations", "{}"),
 )
+TABLES = (("limits", "The commands against the limits", _LIMITS),
+          ("accuracy", "Deformation and tracking", _ACCURACY),
+          ("timing", "Delay, latency and settling", _TIMING))
+"""The comparison's three tables: (name, title, columns), each column (header, row key(s),
+format); every table starts with the method. Together they hold every figure of the
+:meth:`~telesmooth.studies.comparison.Comparison.table` rows that the one wide table had."""
 
 
 def _cell(row: dict, key, fmt: str) -> str:
@@ -77,22 +88,37 @@ def _cell(row: dict, key, fmt: str) -> str:
     return fmt.format(*values)
 
 
-def table_markdown(rows) -> str:
-    """The Table 2 rows (``Comparison.table()``) as a Markdown table; with offline-hard among
-    them, a last column sets each method's E_def beside offline-hard's (the least deformation
-    the limits allow)."""
+def _least_cell(row: dict, least) -> str:
+    """E_def over offline-hard's (the least deformation the limits allow)."""
+    if least is None:
+        return f"n/a ({LEAST_DEFORMATION} not run)"
+    if least == 0:
+        return f"n/a ({LEAST_DEFORMATION} deforms nothing)"
+    return f"{row['cartesian_deformation_mean_m'] / least:.2f}"
+
+
+def comparison_table(rows, name: str) -> str:
+    """One of the :data:`TABLES` (``name``) of the Table 2 rows (``Comparison.table()``) as a
+    Markdown table, one row per method. The accuracy table sets each method's E_def beside
+    offline-hard's (the least deformation the limits allow; n/a without offline-hard)."""
+    columns = next(columns for key, _, columns in TABLES if key == name)
     least = next((row["cartesian_deformation_mean_m"] for row in rows
                   if row["method"] == LEAST_DEFORMATION), None)
-    extra = [f"E_def / {LEAST_DEFORMATION}"] if least is not None else []
-    lines = ["| " + " | ".join([title for title, _, _ in _COLUMNS] + extra) + " |",
-             "|" + "---|" * (len(_COLUMNS) + len(extra))]
+    lines = ["| method | " + " | ".join(title for title, _, _ in columns) + " |",
+             "|---|" + "---:|" * len(columns)]
     for row in rows:
-        cells = [_cell(row, key, fmt) for _, key, fmt in _COLUMNS]
-        if least is not None:
-            cells.append(f"{row['cartesian_deformation_mean_m'] / least:.2f}" if least > 0
-                         else "n/a (offline-hard deforms nothing)")
-        lines.append("| " + " | ".join(cells) + " |")
+        cells = [_least_cell(row, least) if fmt == "least" else _cell(row, key, fmt)
+                 for _, key, fmt in columns]
+        lines.append(f"| {row['method']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def table_markdown(rows) -> str:
+    """The Table 2 rows (``Comparison.table()``) as the three :data:`TABLES`, each under a
+    bold title line: the commands against the limits, deformation and tracking, delay,
+    latency and settling."""
+    return "\n\n".join(f"**{title}**\n\n" + comparison_table(rows, name)
+                       for name, title, _ in TABLES)
 
 
 _GUARD_COLUMNS = (
@@ -169,7 +195,9 @@ def _write_figures(out: Path, comparison: Comparison) -> list[tuple[str, str]]:
     axes[-1, 0].set_xlabel("packet time [s]")
     axes[-1, 1].set_xlabel("packet time [s]")
     save(fig, "acceleration_jerk.png",
-         "What the plant receives: FD acceleration and jerk over their limits, per method")
+         ("What each method sent (the robot received the guard's commands)"
+          if comparison.chain == "deployed" else "What the plant receives")
+         + ": FD acceleration and jerk over their limits, per method")
 
     operator = tool_positions(scenario, comparison.q_original)
     plane = (0, 1) if scenario.arm == "air_bearing_arm" else (0, 2)
@@ -234,72 +262,168 @@ def _write_figures(out: Path, comparison: Comparison) -> list[tuple[str, str]]:
     save(fig, "response_error.png",
          "Response error e(i) per operator sample and method (e_ORG in grey behind each)")
 
-    table = comparison.table()
-    labels = [row["method"] for row in table]
-    panels = (("E_def mean [mm]", [1000 * r["cartesian_deformation_mean_m"] for r in table]),
-              ("e mean [mm]", [1000 * r["e_mean_m"] for r in table]),
-              ("P [%]", [r["improvement_ratio_percent"] for r in table]),
-              ("FD acc max / a_max", [r["fd_acc_max_over_limit"] for r in table]),
-              ("FD jerk max / j_max", [r["fd_jerk_max_over_limit"] for r in table]))
-    fig, axes = plt.subplots(1, len(panels), figsize=(3.0 * len(panels), 3.6))
-    for ax, (title, values) in zip(axes, panels):
-        ax.barh(range(len(labels)), values, color=[f"C{i}" for i in range(len(labels))])
-        ax.set_yticks(range(len(labels)))
+    fig = summary_figure(comparison.table(), deployed=comparison.chain == "deployed")
+    save(fig, "summary.png", "Summary per method" + (
+        " (FD: what each method sent; black ticks: what the robot received from the guard)"
+        if comparison.chain == "deployed" else ""))
+    return writer.figures
+
+
+SUMMARY_LOG_PANELS = ("E_def mean [mm]", "e mean [mm]")
+"""The summary's panels that may take a logarithmic axis: E_def always (its values span
+decades: 0.18 mm for the Kalman smoother to 28 mm for Ruckig on Defaults, which a linear axis
+flattens to nothing), e when its largest positive value is more than
+:data:`LOG_SPAN` times its smallest (behind the guard e_ORG is 5 mm, the others 0.06 mm)."""
+
+LOG_SPAN = 10.0
+"""A panel of :data:`SUMMARY_LOG_PANELS` other than E_def is logarithmic above this span."""
+
+
+def _log_axis(title: str, values: np.ndarray) -> bool:
+    if title not in SUMMARY_LOG_PANELS:
+        return False
+    positive = values[np.isfinite(values) & (values > 0)]
+    return title == SUMMARY_LOG_PANELS[0] or (
+        positive.size > 0 and positive.max() > LOG_SPAN * positive.min())
+
+
+def summary_figure(rows, *, deployed: bool = False):
+    """The summary bar chart of the Table 2 rows: E_def and e (E_def on a logarithmic axis,
+    e too when it spans more than :data:`LOG_SPAN`; each bar labelled with its value, and a
+    value of exactly 0, which a logarithmic axis cannot show, written "0" at the axis' left
+    end), P, and the FD ratios over the limits (linear, the limit dashed; deployed, a black
+    tick marks what the robot received)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
+
+    labels = [row["method"] for row in rows]
+    panels = (("E_def mean [mm]", [1000 * r["cartesian_deformation_mean_m"] for r in rows],
+               None),
+              ("e mean [mm]", [1000 * r["e_mean_m"] for r in rows], None),
+              ("P [%]", [r["improvement_ratio_percent"] for r in rows], None),
+              ("FD acc max / a_max", [r["fd_acc_max_over_limit"] for r in rows],
+               "received_fd_acc_max_over_limit"),
+              ("FD jerk max / j_max", [r["fd_jerk_max_over_limit"] for r in rows],
+               "received_fd_jerk_max_over_limit"))
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 0.3 * len(rows) + 2.2))
+    colors = [f"C{i % 10}" for i in range(len(labels))]
+    where = np.arange(len(labels))
+    for ax, (title, values, received) in zip(axes, panels):
+        values = np.asarray(values, dtype=float)
+        logarithmic = _log_axis(title, values)
+        if logarithmic:
+            positive = values[np.isfinite(values) & (values > 0)]
+            floor = (positive.min() if positive.size else 1.0) / 3.0
+            ax.set_xscale("log")
+            ax.xaxis.set_minor_formatter(NullFormatter())
+            ax.barh(where, np.where(values > 0, values - floor, 0.0), left=floor, color=colors)
+            ax.set_xlim(floor, (positive.max() if positive.size else 1.0) * 8.0)
+            for y, value in zip(where, values):
+                text = "0" if value == 0 else "n/a" if not np.isfinite(value) else f"{value:.3g}"
+                ax.text(max(value, floor) * 1.08, y, text, va="center", fontsize=6)
+        else:
+            ax.barh(where, values, color=colors)
+        if received is not None:
+            ax.axvline(1.0, color="k", ls="--", lw=0.8)
+            if deployed and all(received in r for r in rows):
+                ax.scatter([r[received] for r in rows], where, color="k", marker="|", s=120,
+                           zorder=3, label="received")
+                ax.legend(fontsize=6, loc="lower right")
+        ax.set_yticks(where)
         ax.set_yticklabels(labels if ax is axes[0] else [], fontsize=7)
         ax.invert_yaxis()
-        ax.set_title(title, fontsize=9)
-        if "limit" in title or "/" in title:
-            ax.axvline(1.0, color="k", ls="--", lw=0.8)
-    save(fig, "summary.png", "Summary per method")
-    return writer.figures
+        ax.set_title(title + (" (log)" if logarithmic else ""), fontsize=9)
+    return fig
 
 
 def _report_text(comparison: Comparison, rows, figures, plant: dict) -> str:
     scenario = comparison.scenario
-    table = table_markdown(rows)
+    deployed = comparison.chain == "deployed"
+    lag = scenario.smoother.lag
+    period = comparison.period_s
+    ramp = comparison.setup.ramp_s
+    tracker_ms = 1e3 * scenario.onboard.tracker.period_s
+    original = next((row for row in rows if row["method"] == "original"), None)
+    tau = "" if original is None else f" τ of `original` here: {original['latency_s']:.2f} s."
+    sent = ("the packets each method sent (the robot received the guard's commands: see "
+            "the last table)" if deployed else "the packets as the plant receives them")
+    reached = ("a ramp after the robot began to move towards it (behind the link and the "
+               "guard: one receiver poll after the send time on a perfect link)" if deployed
+               else f"{ramp:g} s after its send time, when the interpolator has reached it")
     lines = [
         "# telesmooth compare",
         "",
         f"Chain: {describe_chain(scenario)}.",
         "",
         f"Scenario: arm `{scenario.arm}`, operator: {describe_operator(scenario)}; "
-        f"{comparison.q_original.shape[0]} operator samples at {comparison.period_s} s "
+        f"{comparison.q_original.shape[0]} operator samples at {period} s "
         f"(the recording and {scenario.settle_s} s of holding still); every method played "
         f"through the same uplink and flexible-joint robot for {comparison.duration_s:.1f} s.",
         "",
         plant_text(plant),
         "",
-        table,
+        "The paper's Table 2 in three tables, one row per method (docs/method.md §6; "
+        "definitions in `telesmooth.studies.comparison`; per-joint figures are the worst "
+        "joint's; a ratio over its limit is printed with a `!`).",
         "",
-        "How to read it (docs/method.md §6; definitions in `telesmooth.studies.comparison`):",
+        f"## {TABLES[0][1]}",
         "",
-        "- FD acc/jerk: finite differences of the packets as the plant receives them (start "
-        "pose before, last packet held after), worst joint; *over* is the share of samples "
-        "above the limit.",
-        "- joint def., E_def: the method's estimate of each operator sample against the sample "
-        "(worst joint; Cartesian via forward kinematics).",
-        "- e: the robot's response error to its own commands (tracker read when the "
-        "interpolator has reached the packet); e of `original` is e_ORG. "
-        "P = (Σe_ORG − Σe_SMT)/Σe_ORG.",
-        "- vs operator: the tracker against the operator's sample, the error the user feels "
-        "(the fixed-lag methods' designed delay removed).",
-        "- residual motion / settling: the tool after the operator's last sample; settling is "
-        "the time until it stays within 0.1 mm of its final position.",
-        "- pre-sim violations: samples the pre-simulator would refuse (collision, joint "
-        "limits); reported, not enforced, in this comparison.",
+        f"- *FD acc / jerk max/limit*: the largest finite-difference acceleration and jerk of "
+        f"{sent}, the start pose three times before the first and the last held after it, "
+        "over a_max and j_max; *over*: the share of the samples above the limit.",
+        "- *pre-sim violations*: samples the pre-simulator would refuse (a collision within "
+        "the safety margin, a joint limit); reported, not enforced, in this comparison.",
+        "",
+        comparison_table(rows, "limits"),
+        "",
+        f"## {TABLES[1][1]}",
+        "",
+        "- *joint def.*, *E_def*: the method's estimate of each operator sample against the "
+        "sample, in joint space and at the tool (forward kinematics); *E_def / "
+        f"{LEAST_DEFORMATION}*: over the deformation of `{LEAST_DEFORMATION}`, the least the "
+        "limits force.",
+        "- *e*: the robot's response error to the packet carrying each sample, ‖FK(estimate) − "
+        f"tool‖ with the tool read at the tracker's sample {reached}; e of `original` is "
+        "e_ORG. *P* = (Σe_ORG − Σe_SMT)/Σe_ORG × 100 %."
+        + (" Where the guard cut a method's commands, e includes the cut." if deployed
+           else ""),
+        "- *vs operator*: the same tool reading against the operator's sample itself, the "
+        "error the user feels once the method's delay is taken away.",
+        "",
+        comparison_table(rows, "accuracy"),
+        "",
+        f"## {TABLES[2][1]}",
+        "",
+        f"- *delay*: the method's designed delay d·Δt between operator sample i (taken at t_i) "
+        f"and the packet that carries its estimate (sent at t_i + d·Δt): the fixed-lag "
+        f"methods send x̂_(k−L|k), d = L = {lag} ticks of {period:g} s; the others d = 0. The "
+        "first d packets repeat the start pose.",
+        "- *added latency*: τ of the method − τ of `original`, where τ is the time shift that "
+        "best aligns the robot's tool track with the operator's: the τ ≥ 0 minimising the "
+        "mean over the operator samples of ‖FK(z_i) − tool(t_i + τ)‖ (the tracker's record "
+        f"linearly interpolated, τ on its {tracker_ms:g} ms grid, at most 5 s and half the "
+        "record). It holds the designed delay and any lag of the robot's response beyond the "
+        f"original's.{tau}",
+        "- *residual motion*, *settling*: the tool after the operator's last sample (once the "
+        "robot has reached the packet carrying it): its largest distance from its final "
+        "position, and the time from the last sample until it stays within 0.1 mm of it.",
+        "",
+        comparison_table(rows, "timing"),
         "",
     ]
-    if comparison.chain == "deployed":
+    if deployed:
         lines += [
             "## What the onboard link guard did",
             "",
-            "The figures above are of what each method sent; the robot received the guard's "
-            "commands. *Limited*: commands that differ from the packet they followed (the "
-            "guard cut them to keep the limits); *largest cut*: the largest |command − packet| "
-            "of those, worst joint; *farthest from the stream*: the largest distance of the "
-            "robot's command from the newest accepted packet after any poll; *received FD*: "
-            "the finite differences of the guard's commands (after the robot's rest at its "
-            "start pose) over the limits.",
+            "The robot received the guard's commands, not the packets. *Limited*: commands "
+            "that differ from the packet they followed (the guard cut them to keep the "
+            "limits); *largest cut*: the largest |command − packet| of those, worst joint; "
+            "*farthest from the stream*: the largest distance of the robot's command from the "
+            "newest accepted packet after any poll; *received FD*: the finite differences of "
+            "the guard's commands (after the robot's rest at its start pose) over the limits.",
             "",
             guard_table_markdown(rows),
             "",

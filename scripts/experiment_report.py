@@ -51,7 +51,8 @@ from telesmooth.studies.experiment import (
 )
 from telesmooth.user_input import MAX_JSON_BYTES, read_file_bytes
 
-__all__ = ["code_fingerprint", "grid_fingerprint", "guard_table_markdown",
+__all__ = ["claim_figures_markdown", "code_fingerprint", "grid_fingerprint",
+           "guard_table_markdown",
            "main_table_markdown",
            "merge_experiment_reports", "read_records", "write_experiment_report"]
 
@@ -275,9 +276,185 @@ def _claims_markdown(claims: dict, level: str = "###") -> str:
     lines = []
     for name, claim in claims.items():
         lines += [f"{level} {name}: {claim['verdict']}", "", f"*{claim['claim']}*", "",
-                  f"Rule: {claim['rule']}.", "", "```",
-                  json.dumps(claim["figures"], indent=1, default=float)[:3000], "```", ""]
+                  f"Rule: {claim['rule']}.", ""]
+        figures = claim_figures_markdown(name, claim["figures"])
+        lines += [figures, ""] if figures else []
     return "\n".join(lines)
+
+
+# --- a claim's figures in words and tables (experiment.json keeps them as data) ----------------
+
+
+def _number(value, fmt: str = "{:.3g}") -> str:
+    """A figure in a table cell: n/a for a missing or non-finite value."""
+    if value is None or isinstance(value, bool):
+        return "n/a" if value is None else ("yes" if value else "no")
+    if isinstance(value, (int, float)) and not math.isfinite(value):
+        return "n/a"
+    return limit_ratio(value) if fmt == "ratio" else fmt.format(value)
+
+
+def _names(labels) -> str:
+    return ", ".join(f"`{label}`" for label in labels) if labels else "none"
+
+
+_FIGURE_NAMES = {
+    "position_deformation_mean_rad": ("joint position deformation [mrad]", 1e3),
+    "velocity_deformation_mean_rad_per_s": ("joint velocity deformation [mrad/s]", 1e3),
+    "cartesian_deformation_mean_m": ("E_def [mm]", 1e3),
+}
+
+
+def _c1(figures: dict) -> list[str]:
+    quantile = f"worst_ratio_p{C1_QUANTILE}"
+    methods = [label for label, row in figures.items()
+               if isinstance(row, dict) and quantile in row]
+    lines = ["Per demonstration, the worst FD acceleration or jerk over its limit; over the "
+             "demonstrations:", "",
+             f"| method | median | {C1_QUANTILE}th percentile | largest | share of the samples "
+             "over a limit |", "|---|---:|---:|---:|---:|"]
+    for label in methods:
+        row = figures[label]
+        share = row.get("share_of_samples_over_a_limit")
+        lines.append(f"| {label} | {_number(row['worst_ratio_median'], 'ratio')} | "
+                     f"{_number(row[quantile], 'ratio')} | "
+                     f"{_number(row['worst_ratio_max'], 'ratio')} | "
+                     f"{_number(None if share is None else 100 * share, '{:.1f} %')} |")
+    within = figures.get("constrained_within_approximately", {})
+    strict = figures.get("strict_rule", {})
+    lines += ["", f"Within {APPROXIMATE_LIMIT}× at the {C1_QUANTILE}th percentile: "
+              + ", ".join(f"`{label}` {_number(ok)}" for label, ok in within.items())
+              + f". Unconstrained methods over 1×: "
+              f"{_names(figures.get('unconstrained_over_the_limit', []))}."
+              + (f" The strict rule ({strict['rule']}): {strict['verdict']}." if strict
+                 else "")]
+    return lines
+
+
+def _largest_deformation(figures: dict) -> list[str]:
+    keys = [key for key in figures if isinstance(figures[key], dict)
+            and "means" in figures[key]]
+    methods = list(dict.fromkeys(m for key in keys for m in figures[key]["means"]))
+    beside = {key: next(((name[:-len(" (beside)")], value)
+                         for name, value in figures[key].items()
+                         if name.endswith(" (beside)")), None) for key in keys}
+    header = [_FIGURE_NAMES.get(key, (key, 1.0)) for key in keys]
+    lines = ["Mean over the demonstrations:", "",
+             "| method | " + " | ".join(name for name, _ in header) + " |",
+             "|---|" + "---:|" * len(keys)]
+    for label in methods:
+        lines.append(f"| {label} | " + " | ".join(
+            _number(None if figures[key]["means"].get(label) is None
+                    else scale * figures[key]["means"][label])
+            for key, (_, scale) in zip(keys, header)) + " |")
+    others = {pair[0] for pair in beside.values() if pair is not None}
+    for other in sorted(others):
+        lines.append(f"| {other} (beside, not judged) | " + " | ".join(
+            _number(None if beside[key] is None or beside[key][1] is None
+                    else scale * beside[key][1])
+            for key, (_, scale) in zip(keys, header)) + " |")
+    lines += ["", "Largest: " + "; ".join(f"{name}: `{figures[key]['largest']}`"
+                                          for key, (name, _) in zip(keys, header)) + "."]
+    return lines
+
+
+def _c4(figures: dict) -> list[str]:
+    p_mean = figures.get("P_mean", {})
+    positive = figures.get("fraction_of_demos_with_P_positive", {})
+    lines = ["| method | mean P [%] | demonstrations with P > 0 |", "|---|---:|---:|"]
+    for label, value in p_mean.items():
+        share = positive.get(label)
+        lines.append(f"| {label} | {_number(value, '{:.1f}')} | "
+                     f"{_number(None if share is None else 100 * share, '{:.0f} %')} |")
+    for label, value in figures.get("beside", {}).items():
+        lines.append(f"| {label} (beside, not judged) | {_number(value, '{:.1f}')} | – |")
+    return lines + ["", f"Largest mean P: `{figures.get('largest')}`."]
+
+
+def _c5(figures: dict) -> list[str]:
+    lines = ["| method | group | mean P [%] |", "|---|---|---:|"]
+    for group in ("constrained", "unconstrained"):
+        for label, value in figures.get(group, {}).items():
+            lines.append(f"| {label} | {group} | {_number(value, '{:.1f}')} |")
+    for name, value in figures.items():
+        if name.endswith(" (beside)"):
+            lines.append(f"| {name[:-len(' (beside)')]} | beside, not judged | "
+                         f"{_number(value, '{:.1f}')} |")
+    return lines
+
+
+def _c6(figures: dict) -> list[str]:
+    lines = ["| pair | offline E_def mean [mm] | online E_def mean [mm] | offline / online per "
+             "demonstration: mean (largest, where) | verdict |", "|---|---:|---:|---:|---|"]
+    for title, row in figures.items():
+        paired = row.get("offline_over_online_per_demonstration") or {}
+        per_demo = ("n/a" if not paired.get("n") else
+                    f"{paired['mean']:.3g} ({paired['worst']:.3g}, {paired['worst_demo']}; "
+                    f"{paired['n']} demonstrations)")
+        lines.append(f"| {title} | {_number(1e3 * row['offline_E_def_mean_m'])} | "
+                     f"{_number(1e3 * row['online_E_def_mean_m'])} | {per_demo} | "
+                     f"{row['verdict']} |")
+    return lines
+
+
+def _c7(figures: dict) -> list[str]:
+    ranks = figures.get("mean_rank", {})
+    lines = ["Mean rank over FD acc, FD jerk, E_def and e (1 = best):", "",
+             "| method | mean rank |", "|---|---:|"]
+    lines += [f"| {label} | {_number(rank, '{:.2f}')} |"
+              for label, rank in sorted(ranks.items(), key=lambda item: item[1])]
+    return lines + ["", f"Worst: `{figures.get('worst')}`."]
+
+
+def _c8(figures: dict) -> list[str]:
+    return [f"σ never increased in {figures['shapes_sigma_monotone']} of {figures['shapes']} "
+            f"shapes; {figures['later_operations_not_rougher']} of "
+            f"{figures['later_operations']} later operations with σ carried over were no "
+            f"rougher (worst FD jerk) than the same operation from σ_0 "
+            f"({_number(100 * figures['fraction_not_rougher'], '{:.0f} %')}); mean worst FD "
+            f"jerk / j_max: {_number(figures['fd_jerk_max_over_limit_carried_mean'], 'ratio')} "
+            f"carried over, {_number(figures['fd_jerk_max_over_limit_fresh_mean'], 'ratio')} "
+            "from σ_0."]
+
+
+_CLAIM_FIGURES = {"C1": _c1, "C2": _largest_deformation, "C3": _largest_deformation,
+                  "C4": _c4, "C5": _c5, "C6": _c6, "C7": _c7, "C8": _c8}
+
+
+def _flat_figures(figures, prefix: str = "") -> list[tuple[str, str]]:
+    """Every leaf of nested figures as (path, value text)."""
+    if isinstance(figures, dict):
+        rows = []
+        for key, value in figures.items():
+            rows += _flat_figures(value, f"{prefix} / {key}" if prefix else str(key))
+        return rows
+    if isinstance(figures, (list, tuple)):
+        if all(not isinstance(v, (dict, list, tuple)) for v in figures):
+            return [(prefix, ", ".join(_number(v) if isinstance(v, (int, float))
+                                       else str(v) for v in figures) or "none")]
+        rows = []
+        for index, value in enumerate(figures):
+            rows += _flat_figures(value, f"{prefix} [{index}]")
+        return rows
+    return [(prefix, _number(figures) if isinstance(figures, (int, float, type(None)))
+             else str(figures))]
+
+
+def claim_figures_markdown(name: str, figures: dict) -> str:
+    """The figures a claim's verdict rests on, as tables and sentences (experiment.json keeps
+    them as data): each claim's own layout; a claim of another shape (a hand-made summary,
+    figures from a later version) as a table of every figure; "" when there are none."""
+    if not figures:
+        return ""
+    render = _CLAIM_FIGURES.get(name)
+    if render is not None:
+        try:
+            return "\n".join(render(figures))
+        except (KeyError, TypeError, AttributeError, ValueError):
+            pass          # another shape of figures: the plain table below
+    rows = _flat_figures(figures)
+    return "\n".join(["| figure | value |", "|---|---|"]
+                     + [f"| {path} | {value} |" for path, value in rows])
 
 
 def verdict_table_markdown(claims_by_cell: dict) -> str:
@@ -413,9 +590,10 @@ def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figure
         + f"); this run computed {meta['computed']} of them on {meta['workers']} in "
         f"{meta['wall_s']:.0f} s"
         + (f", the others were kept from earlier runs ({meta['kept']})" if meta['kept'] else "")
-        + f". Shapes: {len(config.shapes)}, demonstrations {list(config.demos)} of each; "
+        + f". Shapes: {len(config.shapes)}, demonstrations "
+        f"{', '.join(str(demo) for demo in config.demos)} of each; "
         f"cells (plant × speed): {', '.join(summaries)}; sensitivity on "
-        f"{list(config.sensitivity_shapes)}; C8 on {len(config.c8_shapes)} shapes × 7 "
+        f"{_names(config.sensitivity_shapes)}; C8 on {len(config.c8_shapes)} shapes × 7 "
         "demonstrations.",
         "",
         "## Set-up",
@@ -429,7 +607,7 @@ def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figure
         f"{meta['j_max']} rad/s³ per joint).",
         f"- Plant: the flexible-joint arm, {_plant_step_text(config.plant_time_step_s)}, "
         f"{config.settle_s:g} s simulated after the operator's last sample; drive presets "
-        f"{list(config.plants)} (`onboard.drive.preset`).",
+        f"{_names(config.plants)} (`onboard.drive.preset`).",
         f"- KF: every claim uses `{config.kf_form}` (the other form is given beside it); the "
         "paper's methods are KF, Offline-KS, Offline-CKS (the state box), BMFLS and "
         "Online-CKS. `offline-hard` (closest to the operator within the limits) is the "

@@ -141,6 +141,14 @@ def test_the_compare_report_names_its_chain_first_and_what_the_guard_did(tmp_pat
     assert paper[2].startswith("Chain: the paper's chain")
     assert deployed[2].startswith("Chain: the deployed chain")
     assert "What the onboard link guard did" not in "\n".join(paper)
+    # Above the timing table, delay and added latency are defined, with the original's τ.
+    timing = paper.index("## Delay, latency and settling")
+    table = next(i for i in range(timing, len(paper)) if paper[i].startswith("| method |"))
+    above = "\n".join(paper[timing:table])
+    assert "- *delay*: the method's designed delay d·Δt" in above
+    assert "- *added latency*: τ of the method − τ of `original`" in above
+    original = json.loads((tmp_path / "paper" / "comparison.json").read_text())["table"][0]
+    assert f"τ of `original` here: {original['latency_s']:.2f} s." in above
     text = "\n".join(deployed)
     assert "## What the onboard link guard did" in text
     header = next(line for line in deployed if line.startswith("| method | commands |"))

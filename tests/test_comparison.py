@@ -170,17 +170,23 @@ def test_cli_writes_the_report(tmp_path, capsys):
     data = json.loads((out / "comparison.json").read_text())
     assert [row["method"] for row in data["table"]] == ["original", "bmfls", "online-cks",
                                                         "offline-hard"]
-    table = (out / "table.md").read_text().splitlines()
-    assert len(table) == 2 + 4 and table[2].startswith("| original | 0.00 |")
+    # Three tables (limits, accuracy, timing), each under its title, one row per method.
+    blocks = (out / "table.md").read_text().strip().split("\n\n")
+    assert [b for b in blocks if b.startswith("**")] == [
+        "**The commands against the limits**", "**Deformation and tracking**",
+        "**Delay, latency and settling**"]
+    limits, accuracy, timing = (b.splitlines() for b in blocks if b.startswith("| method |"))
+    assert all(len(table) == 2 + 4 for table in (limits, accuracy, timing))
+    assert timing[2].startswith("| original | 0.00 |")
     # Every method's E_def beside offline-hard's, the least deformation the limits allow.
     # This synthetic operator keeps the limits, so offline-hard sends its samples unchanged
     # and there is no ratio to give.
-    assert table[0].rstrip().endswith("| E_def / offline-hard |")
+    assert "| E_def / offline-hard |" in accuracy[0]
     rows = {row["method"]: row for row in data["table"]}
     assert rows["offline-hard"]["cartesian_deformation_mean_m"] == 0.0
-    assert table[4].rstrip().endswith("| n/a (offline-hard deforms nothing) |")
+    assert "| n/a (offline-hard deforms nothing) |" in accuracy[4]
     # offline-hard keeps the limits: no ratio over 1 is flagged on its row.
-    assert "!" not in table[5]
+    assert limits[5].startswith("| offline-hard |") and "!" not in limits[5]
     assert data["plant"]["modes"]["natural_frequency_hz"][0] > 0
     with open(out / "packets.csv", newline="") as handle:
         rows = list(csv.reader(handle))
