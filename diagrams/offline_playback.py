@@ -194,7 +194,7 @@ def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q
             fifo=None, smoother=None, uplink=uplink, recording=None,
             initial_position_rad=np.asarray(q_start, dtype=float),
             joint_names=tuple(arm.joint_names))
-        receiver, guard, _ = AddDeployedLink(builder, ground, scenario, robot)
+        _, receiver, guard, _ = AddDeployedLink(builder, ground, scenario, robot)
     else:
         connect_uplink_to_robot(builder, uplink, robot)
     ports = {"sequence_number": uplink.get_sequence_number_output_port(),

@@ -479,12 +479,18 @@ def _load_scenario(args, overrides=None):
     options = {}
     if getattr(args, "on_collision", None) is not None:
         options["fifo"] = {"on_collision": args.on_collision}
-    if getattr(args, "chain", None) is not None:
-        options["chain"] = args.chain
+    chain = getattr(args, "scenario_chain", None) or getattr(args, "chain", None)
+    if chain is not None:
+        options["chain"] = chain
     options = merge_data(options, overrides or {})
-    return load_scenario(filename=args.scenario, scenario_name=args.scenario_name,
-                         scenario_text=args.scenario_text, option_names=_SCENARIO_OPTIONS,
-                         overrides=options or None)
+    try:
+        return load_scenario(filename=args.scenario, scenario_name=args.scenario_name,
+                             scenario_text=args.scenario_text, option_names=_SCENARIO_OPTIONS,
+                             overrides=options or None)
+    except ValueError as error:
+        if chain is not None and "link.faults need chain" in str(error):
+            raise ValueError(f"--chain {chain}: {error}") from None
+        raise
 
 
 def _add_simulate_parser(subparsers) -> None:

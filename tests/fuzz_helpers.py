@@ -304,6 +304,7 @@ def lcm_messages(draw, lcm_type=None):
         msg.utime, msg.seq, msg.num_axes = draw(INT64), draw(INT32), n
         msg.pose_desired = draw(st.lists(DOUBLES, min_size=n, max_size=n))
         msg.enable = draw(st.booleans())
+        msg.stop = draw(st.booleans())
     elif lcm_type is lcmt_onboard_joint_status:
         msg.utime, msg.seq, msg.num_joints = draw(INT64), draw(INT32), n
         msg.joint_position_link = draw(st.lists(DOUBLES, min_size=n, max_size=n))
@@ -317,6 +318,9 @@ def lcm_messages(draw, lcm_type=None):
         (msg.accepted_count, msg.rejected_invalid_count, msg.rejected_auth_count,
          msg.dropped_duplicate_count, msg.dropped_stale_count,
          msg.undecodable_count) = (draw(INT32) for _ in range(6))
+        msg.sample_utime = draw(INT64)
+        msg.joint_velocity_link = draw(st.lists(DOUBLES, min_size=n, max_size=n))
+        msg.joint_velocity_motor = draw(st.lists(DOUBLES, min_size=n, max_size=n))
     else:
         msg.utime, msg.seq = draw(INT64), draw(INT32)
         msg.collision_detected, msg.holding = draw(st.booleans()), draw(st.booleans())

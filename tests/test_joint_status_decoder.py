@@ -33,6 +33,8 @@ def _message(num_joints=3):
     msg.accepted_count = 18
     msg.onboard_epoch = 5
     msg.stream_distance_rad = 0.004
+    msg.joint_velocity_link = [0.5, 0.6, 0.7][:num_joints]     # not part of the vector
+    msg.joint_velocity_motor = [0.8, 0.9, 1.0][:num_joints]
     return msg
 
 
