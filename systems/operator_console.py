@@ -83,12 +83,15 @@ class MeshcatControls:
         """The controls now, as the console step's inputs."""
         meshcat = self._meshcat
         gamepad = meshcat.GetGamepad()
+        # The page sends an empty gamepad when the browser loses it; Meshcat then keeps the
+        # old index with no axes: that is no gamepad.
+        present = gamepad.index is not None and len(gamepad.axes) > 0
         return ConsoleInputs(
             sliders=np.array([meshcat.GetSliderValue(SLIDERS[name]) for name in self._names]),
             enable_clicks=meshcat.GetButtonClicks(ENABLE_BUTTON),
             stop_clicks=meshcat.GetButtonClicks(STOP_BUTTON),
-            gamepad=Gamepad(index=gamepad.index, axes=tuple(gamepad.axes),
-                            buttons=tuple(gamepad.button_values)),
+            gamepad=Gamepad(index=gamepad.index if present else None,
+                            axes=tuple(gamepad.axes), buttons=tuple(gamepad.button_values)),
             connections=meshcat.GetNumActiveConnections(),
             anchor_pose=anchor_pose)
 

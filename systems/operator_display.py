@@ -105,6 +105,7 @@ class ArmDrawing:
         plant.Finalize()
         self._plant = plant
         self._context = plant.CreateDefaultContext()
+        self._drawn = None
         self._links = [arm.base] + list(arm.links)
         self._bodies = [plant.GetBodyByName(link.name) for link in self._links]
         meshcat.Delete(path)
@@ -128,10 +129,13 @@ class ArmDrawing:
         self._meshcat.SetProperty(self._path, "visible", bool(visible))
 
     def draw(self, q) -> None:
-        """Puts the links at joint angles ``q`` (rad; nothing is drawn for a non-finite q)."""
+        """Puts the links at joint angles ``q`` (rad; nothing is drawn for a non-finite q, nor
+        for the angles already drawn: a robot at rest costs the page nothing)."""
         q = np.asarray(q, dtype=float)
-        if not np.all(np.isfinite(q)):
+        if not np.all(np.isfinite(q)) or (self._drawn is not None
+                                          and np.array_equal(q, self._drawn)):
             return
+        self._drawn = q.copy()
         self._plant.SetPositions(self._context, q)
         for link, body in zip(self._links, self._bodies):
             self._meshcat.SetTransform(f"{self._path}/{link.name}",
@@ -181,7 +185,8 @@ class OperatorDisplay(LeafSystem):
     def __init__(self, meshcat, arm: ArmDescription, *, pose_names, period_s: float,
                  uplink_period_s: float, max_acceleration, max_jerk,
                  residual_warning_m: float, status_period_s: float = 0.5,
-                 trail_points: int = 400, clock: DisplayClock | None = None,
+                 trail_points: int = 400, trail_period_s: float = 0.5,
+                 clock: DisplayClock | None = None,
                  ik_names=None):
         super().__init__()
         self._meshcat = meshcat
@@ -195,6 +200,9 @@ class OperatorDisplay(LeafSystem):
         self._residual_warning = float(residual_warning_m)
         self._status_period = float(status_period_s)
         self._trail_points = int(trail_points)
+        self._trail_period = float(trail_period_s)
+        self._trail_time = -math.inf
+        self._hand_drawn = None
         self.clock = clock or DisplayClock()
         self._ik_names = ik_names or {}
         sizes = {"q_planning": n, "hand_pose": m, "enable": 1, "stop": 1, "notice": 1,
@@ -292,15 +300,19 @@ class OperatorDisplay(LeafSystem):
         self._planning.draw(value(context, "q_planning"))
         self._received.draw(value(context, "q_received"))
         self._predicted.draw(value(context, "q_predicted"))
-        meshcat.SetTransform("/operator/hand",
-                             RigidTransform(self._hand_point(value(context, "hand_pose"))))
+        hand = self._hand_point(value(context, "hand_pose"))
+        if self._hand_drawn is None or not np.array_equal(hand, self._hand_drawn):
+            meshcat.SetTransform("/operator/hand", RigidTransform(hand))
+            self._hand_drawn = hand
         tool = value(context, "tool_received")
         if np.all(np.isfinite(tool)) and (not self._trail
                                           or np.any(tool != self._trail[-1])):
             self._trail.append(tool)
             del self._trail[:-self._trail_points]
-            if len(self._trail) >= 2:
+            # The trail is a new line each time it is drawn: twice a second is plenty.
+            if len(self._trail) >= 2 and now - self._trail_time >= self._trail_period - 1e-9:
                 meshcat.SetLine("/operator/trail", np.array(self._trail).T, 2.0, TRAIL_RGBA)
+                self._trail_time = now
         q_sent = value(context, "q_sent")
         if not self._sent or np.any(q_sent != self._sent[-1]):
             self._sent.append(q_sent)

@@ -79,6 +79,19 @@ def _first(mask, t):
     return float(t[index[0]]) if index.size else float("inf")
 
 
+def _follows(out, t, x, level_m=0.005):
+    """The robot reached each level of the hand's +x motion at least the FIFO's delay after
+    the hand did. (The fixed-lag smoother's estimate of the sample 0.75 s back already uses
+    the newer samples, so the robot may stir earlier by a fraction of a millimetre; it
+    follows the motion itself 0.75 s behind, plus the onboard ramp.)"""
+    telemetry = _floats(out / "telemetry.csv")
+    tool = telemetry["tool_x"]
+    for level in (level_m, 2 * level_m):
+        hand = _first(x - x[0] >= level, t)
+        robot = _first(tool - tool[0] >= level, telemetry["t"])
+        assert np.isfinite(hand) and robot - hand >= DELAY_S, (level, robot, hand)
+
+
 def _robot_limits(out):
     received = _floats(out / "received.csv")
     q = np.column_stack([received[k] for k in received if k.startswith("q_")])
@@ -159,11 +172,7 @@ def test_driven_through_meshcats_websocket_protocol(tmp_path):
     closed = _first(notice == "no-browser", t)
     assert closed - marks["closed"] < DELAY_S, (closed, marks)
     # The robot followed the hand no sooner than the FIFO's delay, within the limits.
-    telemetry = _floats(out / "telemetry.csv")
-    moved = _first(np.abs(telemetry["tool_x"] - telemetry["tool_x"][0]) > 1e-4,
-                   telemetry["t"])
-    hand_moved = _first(np.abs(x - x[0]) > 1e-4, t)
-    assert moved - hand_moved >= DELAY_S - 0.01, (moved, hand_moved)
+    _follows(out, t, x)
     ratios = _robot_limits(out)
     assert ratios.acceleration <= 1.0 + 1e-9 and ratios.jerk <= 1.0 + 1e-9
     assert "late ticks" in log
@@ -211,13 +220,13 @@ def test_driven_from_a_real_browser(tmp_path):
             "--disable-background-networking", "--disable-component-update",
             "--disable-sync", "--no-first-run"])
         try:
-            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            page = browser.new_page(viewport={"width": 1024, "height": 640})
             page.goto(url)
             page.wait_for_function("() => window.viewer && viewer.scene_tree && "
                                    "viewer.scene_tree.find(['operator','planning','link1'])"
                                    ".object", timeout=60_000)
             page.evaluate(_PAGE_PROBE)
-            page.get_by_text("Open Controls").click()
+            page.evaluate("() => viewer.gui.open()")     # the control panel, with the status
             time.sleep(0.5)
             marks["space"] = time.monotonic() - started
             page.keyboard.press("Space")
@@ -232,7 +241,6 @@ def test_driven_from_a_real_browser(tmp_path):
             probe = page.evaluate("() => window.__probe")
             rows = page.evaluate("() => Array.from(document.querySelectorAll('.property-name'))"
                                  ".map(e => e.textContent)")
-            print("page rows:", rows)
         finally:
             browser.close()
     _finish(process)
@@ -251,10 +259,7 @@ def test_driven_from_a_real_browser(tmp_path):
     # The hand moved +x at once after D (within a few haptic ticks of the page's keys).
     assert moved - marks["d"] < 0.5, (moved, marks)
     assert x[-1] > x[0] + 0.05
-    telemetry = _floats(out / "telemetry.csv")
-    robot = _first(np.abs(telemetry["tool_x"] - telemetry["tool_x"][0]) > 1e-4,
-                   telemetry["t"])
-    assert robot - moved >= DELAY_S - 0.01, (robot, moved)
+    _follows(out, t, x)
     ratios = _robot_limits(out)
     assert ratios.acceleration <= 1.0 + 1e-9 and ratios.jerk <= 1.0 + 1e-9
     # Hand-to-screen latency: from the first D keydown to the solid model's first move.
