@@ -283,6 +283,9 @@ class RobotPredictor(LeafSystem):
         self._ahead_stale = False
         self._pending: list[tuple[int, float, object]] = []
         self._replica = self._synced = self._ahead = None
+        self._catchup = self._spare = None
+        self._catchup_from = self._ahead_horizon_from = 0.0
+        self._catchup_budget = 3.0 * float(period_s)
         self._start = None
         if initial_position_rad is not None:
             # Built now (a build takes about a second: not in the middle of a live run).
@@ -342,6 +345,8 @@ class RobotPredictor(LeafSystem):
         self._replica = self._factory(q0)
         self._synced = self._replica.make_simulator(self._replica.diagram)
         self._ahead = self._replica.make_simulator(self._replica.diagram)
+        self._spare = self._replica.make_simulator(self._replica.diagram)
+        self._catchup = None
         self._synced.Initialize()
         self._ahead.get_mutable_context().SetTimeStateAndParametersFrom(
             self._synced.get_context())
@@ -452,6 +457,43 @@ class RobotPredictor(LeafSystem):
             self._pending.clear()
         return samples
 
+    def _follow_telemetry(self, now: float) -> None:
+        """Keeps the synchronised copy at the newest telemetry it may use (a little each
+        update), and re-synchronises its plant there every ``resync_period_s``."""
+        sample = self._usable_sample(now)
+        if sample is None:
+            return
+        synced = self._synced.get_context()
+        if self._remote and len(self._replica.packets) == 0:
+            # Nothing sent yet: the copy rests until the robot's clock reads this (its clock
+            # started long before the console's).
+            if sample.sample_t_s > synced.get_time():
+                self._synced.get_mutable_context().SetTime(sample.sample_t_s)
+                self._synced.Initialize(InitializeParams(suppress_initialization_events=True))
+        elif sample.sample_t_s > synced.get_time():
+            self._synced.AdvanceTo(sample.sample_t_s)
+        due = sample.sample_t_s >= self._synced_sample_t + self._resync_period - 1e-9
+        if due and self._catchup is None and abs(
+                self._synced.get_context().get_time() - sample.sample_t_s) < 1e-9:
+            # Re-synchronise: the copy at the sample's instant, with the measured state.
+            self._replica.robot.SetMeasuredState(
+                self._synced.get_mutable_context(), q_link=sample.q_link,
+                q_motor=sample.q_motor, v_link=sample.v_link, v_motor=sample.v_motor)
+            self._synced_sample_t = sample.sample_t_s
+            self._ahead_stale = True
+
+    def _start_catchup(self) -> None:
+        """A new look-ahead from the synchronised copy, brought up to now over the next
+        updates (:attr:`_catchup`); the shown one runs on until it is."""
+        if self._spare is None:
+            self._spare = self._replica.make_simulator(self._replica.diagram)
+        self._catchup, self._spare = self._spare, None
+        self._catchup.get_mutable_context().SetTimeStateAndParametersFrom(
+            self._synced.get_context())
+        self._catchup.Initialize(InitializeParams(suppress_initialization_events=True))
+        self._catchup_from = self._synced.get_context().get_time()
+        self._ahead_stale = False
+
     def _known_until(self, now: float) -> float:
         """Up to when (the copy's clock) the packets that reach the robot are known: in one
         process, always; on the bus, until the next packet is due (the last heard one's
@@ -464,15 +506,13 @@ class RobotPredictor(LeafSystem):
         due = log.last_send_time() + self._uplink_period
         return now if now > due + self._uplink_period else due
 
-    def _sync_sample(self, now: float) -> TelemetrySample | None:
+    def _usable_sample(self, now: float) -> TelemetrySample | None:
         """The newest telemetry sample the copy may be synchronised on: at most what the
-        packets known let it reach, and a re-synchronisation period after the last."""
+        packets known let it reach (None if none is)."""
         limit = self._known_until(now)
         for sample in reversed(self._recent):
             if sample.sample_t_s <= limit + 1e-9:
-                if sample.sample_t_s >= self._synced_sample_t + self._resync_period - 1e-9:
-                    return sample
-                return None
+                return sample
         return None
 
     def _measure(self, sample: TelemetrySample) -> None:
@@ -522,33 +562,23 @@ class RobotPredictor(LeafSystem):
         now = self._now(local)
         if self._replica is None or now is None:
             return
-        sync = self._sync_sample(now)
-        if sync is not None:
-            # Re-synchronise: the copy at the sample's instant, with the measured state.
-            if self._remote and len(self._replica.packets) == 0:
-                # Nothing sent yet: the copy rests until the robot's clock reads this (its
-                # clock started long before the console's).
-                self._synced.get_mutable_context().SetTime(
-                    max(sync.sample_t_s, self._synced.get_context().get_time()))
-                self._synced.Initialize(InitializeParams(suppress_initialization_events=True))
-            elif sync.sample_t_s > self._synced.get_context().get_time():
-                self._synced.AdvanceTo(sync.sample_t_s)
-            self._replica.robot.SetMeasuredState(
-                self._synced.get_mutable_context(), q_link=sync.q_link,
-                q_motor=sync.q_motor, v_link=sync.v_link, v_motor=sync.v_motor)
-            self._synced_sample_t = sync.sample_t_s
-            self._ahead_stale = True
-        if self._ahead_stale:
-            self._ahead.get_mutable_context().SetTimeStateAndParametersFrom(
-                self._synced.get_context())
-            self._ahead.Initialize(InitializeParams(suppress_initialization_events=True))
-            self._ahead_stale = False
+        self._follow_telemetry(now)
+        if self._catchup is None and self._ahead_stale:
+            self._start_catchup()
+        if self._catchup is not None:
+            # At most the budget of copy-time per update: a long horizon (a slow downlink)
+            # is caught up over several updates instead of one late tick.
+            target = min(now, self._catchup.get_context().get_time() + self._catchup_budget)
+            if target > self._catchup.get_context().get_time():
+                self._catchup.AdvanceTo(target)
+            if self._catchup.get_context().get_time() >= now - 1e-9:
+                self._ahead, self._spare, self._catchup = self._catchup, self._ahead, None
+                self._ahead_horizon_from = self._catchup_from
         if now > self._ahead.get_context().get_time():
             self._ahead.AdvanceTo(now)
         tool, q = self._predicted(self._ahead.get_context())
-        # How far ahead of the telemetry the copy was last synchronised on.
-        horizon = now - (self._synced_sample_t if newest is not None
-                         else self._synced.get_context().get_time())
+        # How far ahead of the telemetry the look-ahead was synchronised on.
+        horizon = now - self._ahead_horizon_from
         self._predictions[int(round(now / self._grid))] = (horizon, tool)
         self.predictions.append((now, horizon, tool, q))
         # Predictions older than the newest sample will never be measured.
