@@ -1,0 +1,82 @@
+"""The live console's command line: where the page listens, bad options, a short 6-DOF run.
+
+* Meshcat listens on 127.0.0.1 by default (checked on the socket table); another interface
+  needs --host and prints a warning.
+* A port in use, a port out of range, a bad duration, and a scenario key the console does
+  not read are each one error line, exit 2, nothing written.
+* `teleop` on the 6-DOF arm runs and writes its session (the planar arm is covered by
+  tests/test_teleop.py and the live tests).
+"""
+
+import socket
+from pathlib import Path
+
+import pytest
+from bad_input_helpers import assert_one_line_error, run
+
+from telesmooth.scripts.teleop import open_meshcat
+
+
+def _listening_addresses(port: int) -> set:
+    """The local addresses of the TCP sockets listening on ``port`` (from /proc/net/tcp)."""
+    found = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        path = Path(table)
+        if not path.exists():
+            continue
+        for line in path.read_text().splitlines()[1:]:
+            fields = line.split()
+            address, state = fields[1], fields[3]
+            host, port_hex = address.rsplit(":", 1)
+            if state == "0A" and int(port_hex, 16) == port:    # 0A: LISTEN
+                found.add(host)
+    return found
+
+
+def test_the_page_listens_on_this_machine_only_by_default():
+    meshcat = open_meshcat("127.0.0.1", None)
+    port = meshcat.port()
+    # 0100007F is 127.0.0.1 in /proc's byte order; 00000000 would be every interface.
+    assert _listening_addresses(port) == {"0100007F"}, _listening_addresses(port)
+
+
+def test_another_interface_is_said_out_loud(capsys):
+    meshcat = open_meshcat("0.0.0.0", None)
+    err = capsys.readouterr().err
+    assert "--host 0.0.0.0" in err and "anyone who reaches it can drive the robot" in err
+    assert "00000000" in _listening_addresses(meshcat.port())
+
+
+def test_a_port_in_use_is_one_line(capsys, tmp_path):
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        status, out, err = run(capsys, "teleop", "--port", port, "--duration", "1", "--out",
+                               tmp_path / "session")
+    assert_one_line_error(status, out, err, "teleop", f"--port = {port}", "in use")
+    assert not (tmp_path / "session").exists()
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["teleop", "--port", "70000"], ["--port = 70000"]),
+    (["teleop", "--duration", "-1"], ["--duration = -1"]),
+    (["teleop", "--duration", "nan"], ["--duration = nan"]),
+    (["operator", "--lcm-url", "tcpq://x"], ["--lcm-url", "tcpq://x"]),
+    (["teleop", "--scenario-text", "{haptic: {lasa_shape: Sshape}}"],
+     ["haptic.lasa_shape", "console"]),
+])
+def test_bad_options_are_one_line(capsys, tmp_path, argv, words):
+    status, out, err = run(capsys, *argv, "--out", tmp_path / "session")
+    assert_one_line_error(status, out, err, argv[0], *words)
+    assert not (tmp_path / "session").exists()
+
+
+def test_the_six_dof_arm_runs_live(tmp_path, capsys):
+    status, out, err = run(capsys, "teleop", "--scenario-text", "{arm: space_arm}",
+                           "--duration", "2", "--out", tmp_path / "session")
+    assert status == 0, err
+    assert out.startswith("operator console: http://127.0.0.1:")
+    header = (tmp_path / "session" / "operator.csv").read_text().splitlines()[0]
+    assert header == "t,x_m,y_m,z_m,roll_rad,pitch_rad,yaw_rad,enable"
+    assert "# telesmooth teleop" in (tmp_path / "session" / "report.md").read_text()
