@@ -22,8 +22,11 @@ sent to the ground station, with these rules (no motion without intent):
   angles), as a real hand on a haptic device would. A slider dragged across the workspace
   is followed at that speed, never in one step that the inverse kinematics would refuse.
 * **The arm's workspace.** A wanted pose outside the arm's reach is saturated at its
-  boundary (``saturate``, :func:`reach_saturation`), and ``saturated`` says so: the display
-  shows the warning; the ground never gets an unreachable pose from the console.
+  boundary (``saturate``, :func:`reach_saturation`), and so is the way to it: the published
+  pose slides along the boundary, and where the straight way crosses the unreachable part
+  (the planar arm's wrist through the shoulder) it holds at the edge until the operator
+  goes round. ``saturated`` says so in both cases and the display shows the warning; the
+  ground never gets an unreachable pose from the console.
 * **Losing the operator.** No browser connected (the page closed, the browser gone), or a
   gamepad that was driving disappears: the clutch is released at once and ``notice`` says
   why. The ground then holds its target (the robot finishes the FIFO's 0.75 s and rests).
@@ -196,7 +199,11 @@ class ConsoleState(NamedTuple):
         gamepad_pressed: The gamepad's Enable and Stop buttons were down at the last step,
             (2,) (a press is a rising edge).
         had_gamepad: A gamepad was connected (its loss releases the clutch).
-        saturated: The wanted pose was outside the reach and was moved onto its boundary.
+        saturated: The reach limits the hand: the wanted pose was outside it and was moved
+            onto its boundary (``wanted_outside``), or the last step was (the hand slides
+            along the edge or holds at it).
+        wanted_outside: The wanted pose was moved onto the reach's boundary when it was
+            last set.
         notice: Why the clutch is released, if the console released it or the operator
             stopped (:class:`ConsoleNotice`).
     """
@@ -212,6 +219,7 @@ class ConsoleState(NamedTuple):
     had_gamepad: bool = False
     saturated: bool = False
     notice: ConsoleNotice = ConsoleNotice.NONE
+    wanted_outside: bool = False
 
 
 class ConsoleOutputs(NamedTuple):
@@ -285,6 +293,51 @@ def _move_towards(params: ConsoleParams, pose, wanted) -> np.ndarray:
     return out
 
 
+def _saturated(params: ConsoleParams, pose) -> tuple[np.ndarray, bool]:
+    """``pose`` within the arm's reach (and whether it had to move)."""
+    if params.saturate is None:
+        return np.array(pose, dtype=float), False
+    inside, moved = params.saturate(pose)
+    return np.array(inside, dtype=float), bool(moved)
+
+
+def _step_within_reach(params: ConsoleParams, pose, wanted) -> tuple[np.ndarray, bool]:
+    """One speed-limited step towards ``wanted`` that stays within the reach, and whether the
+    reach limited it (the hand is at the edge).
+
+    A step that would leave the reach is put back on its boundary, and of the way from
+    ``pose`` to that point the farthest part whose boundary point is still within one step
+    is taken (bisection; the edge curves, so the boundary point can be a little more than a
+    step away): the hand slides along the edge. Where the straight way runs into the
+    unreachable part head-on (the planar wrist straight at the shoulder) the boundary point
+    is ``pose`` itself and the hand holds; the operator goes round."""
+    pose = np.asarray(pose, dtype=float)
+    step = _move_towards(params, pose, wanted)
+    inside, moved = _saturated(params, step)
+    if not moved:
+        return step, False
+    angular = params.angular
+    reach = params.max_speed_m_per_s * params.period_s
+    turn = params.max_angular_speed_rad_per_s * params.period_s
+
+    def within_a_step(candidate) -> bool:
+        delta = candidate - pose
+        return bool(np.linalg.norm(delta[~angular]) <= reach
+                    and np.all(np.abs(delta[angular]) <= turn))
+
+    if within_a_step(inside):
+        return inside, True
+    best, lo, hi = pose.copy(), 0.0, 1.0
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        candidate = _saturated(params, pose + mid * (inside - pose))[0]
+        if within_a_step(candidate):
+            best, lo = candidate, mid
+        else:
+            hi = mid
+    return best, True
+
+
 def console_step(params: ConsoleParams, state: ConsoleState,
                  inputs: ConsoleInputs) -> tuple[ConsoleState, ConsoleOutputs]:
     """One step of the console (the rules of the module docstring).
@@ -300,6 +353,8 @@ def console_step(params: ConsoleParams, state: ConsoleState,
     sliders = np.array(inputs.sliders, dtype=float)
     if sliders.shape != state.pose.shape:
         raise ValueError(f"sliders has shape {sliders.shape}; expected {state.pose.shape}")
+    if not np.all(np.isfinite(sliders)):
+        sliders = np.array(state.sliders, dtype=float)   # a broken reading is no move
     gamepad = inputs.gamepad
     enabled, stop, notice = state.enabled, state.stop, state.notice
     pose, wanted = state.pose, state.wanted
@@ -312,18 +367,21 @@ def console_step(params: ConsoleParams, state: ConsoleState,
     new_enable += int(pressed[0])
     new_stop += int(pressed[1])
     had_gamepad = state.had_gamepad or gamepad.index is not None
+    # Losing the operator, known before any click is handled: nothing engages then.
+    no_browser = inputs.connections <= 0
+    gamepad_lost = state.had_gamepad and gamepad.index is None
 
     if new_stop:
         enabled, stop, notice = False, True, ConsoleNotice.STOPPED
     elif new_enable % 2 == 1:
         if enabled:
             enabled, notice = False, ConsoleNotice.NONE
-        elif inputs.connections > 0:
+        elif not (no_browser or gamepad_lost):
             enabled, notice = True, ConsoleNotice.NONE
             if stop and inputs.anchor_pose is not None:
                 anchor = np.array(inputs.anchor_pose, dtype=float)
                 if anchor.shape == pose.shape and np.all(np.isfinite(anchor)):
-                    pose = anchor   # resume where the robot stopped
+                    pose = _saturated(params, anchor)[0]   # resume where the robot stopped
             stop = False
             # The hand continues from the published pose: the sliders go back on it (if they
             # moved while disengaged; otherwise they are left alone, so that a key already
@@ -333,12 +391,12 @@ def console_step(params: ConsoleParams, state: ConsoleState,
                 set_sliders = pose.copy()
             sliders = state.sliders if set_sliders is None else params.quantize(pose)
     # Losing the operator releases the clutch (the stop, if any, stays in force).
-    if inputs.connections <= 0 and enabled:
+    if no_browser and enabled:
         enabled, notice = False, ConsoleNotice.NO_BROWSER
-    if state.had_gamepad and gamepad.index is None and enabled:
+    if gamepad_lost and enabled:
         enabled, notice = False, ConsoleNotice.GAMEPAD_LOST
 
-    saturated = state.saturated
+    outside = state.wanted_outside
     held = state.sliders      # where the sliders are, as far as the console knows
     if set_sliders is not None:
         held = params.quantize(set_sliders)
@@ -350,16 +408,17 @@ def console_step(params: ConsoleParams, state: ConsoleState,
         moving = rate is not None and bool(np.any(rate != 0.0))
         if moving:
             wanted = wanted + rate * params.period_s
-        if params.saturate is not None and (changed or moving):
-            wanted, saturated = params.saturate(wanted)
-            wanted = np.array(wanted, dtype=float)
+        if changed or moving:
+            wanted, outside = _saturated(params, wanted)
         # The sliders follow the wanted pose when it moved by other means (the gamepad, the
         # reach), a step at a time.
-        if (moving or saturated) and params.sliders_moved(params.quantize(wanted), held):
+        if (moving or outside) and params.sliders_moved(params.quantize(wanted), held):
             set_sliders = wanted.copy()
             held = params.quantize(wanted)
     if enabled:
-        pose = _move_towards(params, pose, wanted)
+        pose, at_edge = _step_within_reach(params, pose, wanted)
+    else:
+        at_edge = state.saturated and not state.wanted_outside
     new_state = ConsoleState(
         pose=np.array(pose, dtype=float), wanted=np.array(wanted, dtype=float),
         sliders=np.array(held, dtype=float),
@@ -367,7 +426,7 @@ def console_step(params: ConsoleParams, state: ConsoleState,
         enable_clicks=max(state.enable_clicks, int(inputs.enable_clicks)),
         stop_clicks=max(state.stop_clicks, int(inputs.stop_clicks)),
         gamepad_pressed=down, had_gamepad=had_gamepad and gamepad.index is not None,
-        saturated=saturated, notice=notice)
+        saturated=outside or at_edge, notice=notice, wanted_outside=outside)
     return new_state, ConsoleOutputs(pose=new_state.pose.copy(), enable=enabled, stop=stop,
                                      set_sliders=set_sliders)
 
@@ -376,8 +435,9 @@ def reach_saturation(arm_name: str, *, margin_m: float = 0.01):
     """The arm's reach as a ``saturate`` callable for :class:`ConsoleParams`.
 
     * ``air_bearing_arm`` (pose x, y, φ): the wrist point p − L₃(cos φ, sin φ) must lie in
-      the annulus |L₁ − L₂| + margin ≤ r ≤ L₁ + L₂ − margin about the shoulder; outside, it
-      is moved radially onto the annulus and the tool point follows (φ kept).
+      the annulus r_min + margin ≤ r ≤ L₁ + L₂ − margin about the shoulder, r_min the wrist's
+      distance with the elbow at its limit (|L₁ − L₂| without one); outside, it is moved
+      radially onto the annulus and the tool point follows (φ kept).
     * ``space_arm`` (x, y, z, roll, pitch, yaw): the tool point within the sphere of radius
       the links beyond the shoulder (1.1 m) − margin about the shoulder-pitch point (and at least
       ``margin`` from it); orientation is not saturated (the inverse kinematics holds an
@@ -389,7 +449,12 @@ def reach_saturation(arm_name: str, *, margin_m: float = 0.01):
 
     if arm_name == "air_bearing_arm":
         l1, l2, l3 = (float(v) for v in AIR_BEARING_ARM.link_lengths_m)
-        inner, outer = abs(l1 - l2) + margin_m, l1 + l2 - margin_m
+        # The elbow's limit keeps the wrist off the shoulder: at the limit angle it is
+        # sqrt(L1² + L2² + 2 L1 L2 cos(q_max)) away (0.127 m at ±170°).
+        elbow = float(np.min(np.abs([AIR_BEARING_ARM.joint_lower_rad[1],
+                                     AIR_BEARING_ARM.joint_upper_rad[1]])))
+        folded = math.sqrt(max(0.0, l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * math.cos(elbow)))
+        inner, outer = max(abs(l1 - l2), folded) + margin_m, l1 + l2 - margin_m
 
         def saturate(pose):
             pose = np.array(pose, dtype=float)

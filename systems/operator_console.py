@@ -123,8 +123,9 @@ class OperatorConsole(LeafSystem):
     - ``pose_desired`` (m,): the hand pose; ``enable`` (1,): the clutch; ``stop_requested``
       (1,): the operator's stop (:mod:`telesmooth.console.input`).
     - ``notice`` (1,): the :class:`~telesmooth.console.input.ConsoleNotice` (why the clutch
-      is released, if the console released it); ``saturated`` (1,): the wanted pose was
-      outside the arm's reach and is held on its boundary.
+      is released, if the console released it); ``saturated`` (1,): the arm's reach limits
+      the hand (the wanted pose was outside it, or the way to it leaves it and the hand
+      slides along the edge or holds there).
 
     Update: periodic discrete every ``params.period_s`` from 0: read the controls
     (``controls.read``), :func:`~telesmooth.console.input.console_step`, move the sliders if

@@ -35,7 +35,10 @@ STEP_M = 0.0005        # 0.05 m/s × 0.01 s
 STEP_RAD = 0.002       # 0.2 rad/s × 0.01 s
 ROUNDING = 1e-15
 L1, L2, L3 = AIR_BEARING_ARM.link_lengths_m
-INNER, OUTER = abs(L1 - L2) + 0.01, L1 + L2 - 0.01     # 0.11 and 0.89 m
+# The wrist's closest approach to the shoulder is with the elbow at its ±170° limit (law of
+# cosines, the links' interior angle 10°): 0.1268 m; the reach keeps a 0.01 m margin.
+FOLDED = math.sqrt(L1 ** 2 + L2 ** 2 - 2 * L1 * L2 * math.cos(math.radians(10.0)))
+INNER, OUTER = FOLDED + 0.01, L1 + L2 - 0.01     # 0.1368 and 0.89 m
 
 
 class Page:
@@ -407,14 +410,17 @@ def test_planar_reach_moves_a_far_wrist_onto_the_outer_circle_on_the_same_ray():
 
 
 def test_planar_reach_moves_a_near_wrist_onto_the_inner_circle_and_keeps_inside_poses():
-    # Catches: no inner boundary (the wrist inside |L1 − L2| is unreachable), or a reach that
-    # moves poses already inside.
+    # Catches: no inner boundary (the wrist closer than the elbow's ±170° limit allows is
+    # unreachable), |L1 − L2| taken for it (0.1 m: the elbow cannot fold that far), or a reach
+    # that moves poses already inside.
     saturate = reach_saturation("air_bearing_arm")
     pose, moved = saturate([0.03 + 0.2, 0.04, 0.0])        # wrist (0.03, 0.04): r = 0.05
     assert moved
-    np.testing.assert_allclose(pose, [0.066 + 0.2, 0.088, 0.0], rtol=0, atol=1e-15)
+    # Onto r = INNER (the elbow's limit, not |L1 − L2|) along the wrist's ray, φ kept.
+    np.testing.assert_allclose(pose, [0.03 * INNER / 0.05 + 0.2, 0.04 * INNER / 0.05, 0.0],
+                               rtol=0, atol=1e-15)
     for inside in ([0.7, 0.0, 0.0], [0.1, 0.5, 2.0], [0.88 + 0.2, 0.0, 0.0],
-                   [0.12 + 0.2, 0.0, 0.0], [0.0, -0.6, -1.5]):
+                   [0.14 + 0.2, 0.0, 0.0], [0.0, -0.6, -1.5]):
         pose, moved = saturate(np.array(inside))
         assert moved is False
         np.testing.assert_array_equal(pose, inside)
@@ -602,6 +608,8 @@ def test_property_the_hand_never_moves_faster_than_the_limits(stream, speed, sat
         start = before.pose
         if before.stop and out.enable and inputs.anchor_pose is not None:
             start = inputs.anchor_pose       # re-anchored, then at most one step (the sticks)
+            if params.saturate is not None:  # an anchor beyond the reach is put on its edge
+                start = params.saturate(start)[0]
         move = out.pose - start
         assert np.linalg.norm(move[:2]) <= linear_limit + 1e-12
         assert abs(move[2]) <= angular_limit + 1e-12
@@ -645,11 +653,6 @@ def test_property_the_wanted_pose_is_always_within_the_reach(stream, speed):
             assert INNER - 1e-12 <= wrist_radius(after.wanted) <= OUTER + 1e-12
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "defect: the published pose moves on a straight line (and φ separately) towards the "
-    "saturated wanted pose, and that path leaves the annulus (through the shoulder's hole, or "
-    "outside when φ turns faster than the position moves): the ground gets unreachable "
-    "poses although the module promises it never does"))
 @settings(STREAM_SETTINGS, phases=[Phase.explicit, Phase.generate])   # no shrinking
 @given(stream=st.lists(events, min_size=1, max_size=10), speed=speeds)
 # Hypothesis mixes the constants of the loaded modules into what it draws, so whether its own
@@ -666,25 +669,28 @@ def test_property_every_published_pose_is_within_the_reach(stream, speed):
             assert INNER - 1e-12 <= wrist_radius(out.pose) <= OUTER + 1e-12
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "defect (see test_property_every_published_pose_is_within_the_reach): a slider taken "
-    "across the shoulder, at the default speeds, sends the wrist through the shoulder "
-    "(r → 0 m, below |L1 − L2| = 0.1 m) for 4.4 s"))
-def test_a_slider_taken_across_the_shoulder_keeps_the_published_wrist_in_the_annulus():
-    # Catches the defect above at the deployed defaults (0.05 m/s, 0.2 rad/s): wrist from
-    # (0.5, 0) to (−0.5, 0) with φ = 0; both ends are inside the annulus.
+def test_a_slider_taken_across_the_shoulder_stops_the_wrist_at_the_rim_and_says_so():
+    # Catches: the published wrist taken through the shoulder (r → 0 m, 4.4 s below the reach
+    # at the deployed 0.05 m/s before the fix), a hand that stops without the reach warning,
+    # or one that cannot leave the rim when the operator goes round.
+    # Wrist from (0.5, 0) to (−0.5, 0) with φ = 0: both ends are inside the annulus, the
+    # straight way between them is not.
     page = engaged_page((0.7, 0.0, 0.0), saturate=reach_saturation("air_bearing_arm"))
     page.step(sliders=[-0.3, 0.0, 0.0])
     radii = [wrist_radius(page.step().pose) for _ in range(2100)]
-    np.testing.assert_array_equal(page.state.pose, [-0.3, 0.0, 0.0])
     assert min(radii) >= INNER - 1e-12
+    # Held at the rim on the wrist's ray (0.5 − INNER m away at 0.5 mm a step), warned.
+    np.testing.assert_allclose(page.state.pose, [INNER + 0.2, 0.0, 0.0], rtol=0, atol=1e-12)
+    assert page.state.saturated
+    # Going round: with the slider to the side the hand slides along the rim (warned) until
+    # the straight way is clear, then moves on to the wanted pose.
+    page.step(sliders=[-0.3, 0.6, 0.0])
+    radii = [wrist_radius(page.step().pose) for _ in range(2000)]
+    assert min(radii) >= INNER - 1e-12
+    np.testing.assert_array_equal(page.state.pose, [-0.3, 0.6, 0.0])
+    assert not page.state.saturated
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "defect: an Enable click in the step the gamepad disappears (after a stop) engages, "
-    "re-anchors and clears the stop, then the gamepad-lost rule releases the clutch: the "
-    "result is released, NOT stopped, and the published pose has jumped to the anchor with "
-    "the clutch released (the stop should hold until the operator engages)"))
 def test_an_enable_click_as_the_gamepad_vanishes_keeps_the_stop_or_engages():
     # Catches the defect above: rules applied in an order that leaves a half-done engagement.
     page = planar_page()
