@@ -62,56 +62,69 @@ def _numbers(values, fmt: str) -> str:
     return " ".join(format(float(v), fmt) for v in values)
 
 
+_RELEASED = {ConsoleNotice.NO_BROWSER: "clutch released: no browser",
+             ConsoleNotice.GAMEPAD_LOST: "clutch released: gamepad lost"}
+
+
+def _largest(values) -> tuple[float, int]:
+    """The largest of ``values`` and its joint (1-based); NaN and 0 when there are none."""
+    values = np.asarray(values, dtype=float)
+    if values.size == 0:
+        return math.nan, 0
+    j = int(np.argmax(values))
+    return float(values[j]), j + 1
+
+
+def _ratio(value: float) -> str:
+    """A ratio in at most five characters (0.50, 12.35, 123, 1e+04)."""
+    return (f"{value:.2f}" if abs(value) < 99.995 else f"{value:.0f}" if abs(value) < 999.5
+            else f"{value:.0e}")
+
+
 def status_lines(s: StatusInputs) -> list[str]:
-    """The panel, one line per subject (see the module docstring)."""
+    """The panel, one short line per subject (the control panel is 240 px wide; see the
+    module docstring and docs/operator.md for what each line means)."""
     if s.stop:
-        clutch = "STOPPED: press Enable (Space) to go on"
+        clutch = "STOPPED: Space to go on"
     elif s.enabled:
-        clutch = "clutch ENGAGED: you drive the robot"
+        clutch = "clutch ENGAGED: " + ("hand at REACH EDGE" if s.saturated else "you drive")
     else:
-        clutch = "clutch released: press Enable (Space) to drive"
-    notice = ConsoleNotice(int(s.notice)).text
-    if notice and not s.stop:
-        clutch += f" ({notice})"
-    if s.saturated:
-        clutch += "; hand at the edge of the reach"
+        clutch = _RELEASED.get(ConsoleNotice(int(s.notice)), "clutch released: Space to drive")
     lines = [clutch]
     if not math.isfinite(s.telemetry_silence_s):
         lines.append("link: NO TELEMETRY yet")
     elif s.telemetry_silence_s > s.link_timeout_s:
-        lines.append(f"link: NO TELEMETRY FOR {s.telemetry_silence_s:.1f} s: the predicted "
-                     "robot runs on the commands sent")
+        lines.append(f"link: NO TELEMETRY FOR {s.telemetry_silence_s:.1f} s")
     else:
         lines.append(f"link up: telemetry {1000 * s.telemetry_age_s:.0f} ms old")
     if s.robot_guard_mode >= 0:
         mode = GuardMode(int(s.robot_guard_mode)).label
-        lines.append(f"robot guard: {mode}, {1000 * s.stream_distance_rad:.1f} mrad from "
-                     "the commands")
-    fifo = "FIFO HOLDING the robot" if s.holding else "FIFO: moving"
+        lines.append(f"robot guard: {mode}, {1000 * s.stream_distance_rad:.1f} mrad off")
+    fifo = "FIFO HOLD" if s.holding else "FIFO moving"
     if s.collision:
-        presim = "pre-simulator: COLLISION"
+        presim = "COLLISION"
     elif math.isfinite(s.min_distance_m):
-        presim = f"pre-simulator: {1000 * s.min_distance_m:.0f} mm clear"
+        presim = (f"{1000 * s.min_distance_m:.0f} mm clear" if s.min_distance_m < 0.9995
+                  else f"{s.min_distance_m:.1f} m clear")
     else:
-        presim = "pre-simulator: —"
-    if s.ik_failure:
-        presim += f"; IK: {s.ik_failure.upper()} (target held)"
+        presim = "clearance —"
     lines.append(f"{fifo}; {presim}")
-    if np.all(np.isfinite(s.sigma)):
-        lines.append(f"σ [rad²/s⁷]: {_numbers(s.sigma, '.1e')}")
+    if s.ik_failure:
+        lines.append(f"IK HOLDS: {s.ik_failure.upper()}")
+    sigma, joint = _largest(s.sigma)
+    if math.isfinite(sigma):
+        lines.append(f"σ max {sigma:.1e} rad²/s⁷ (joint {joint})")
     else:
-        lines.append("σ: not sent on the bus (the ground's report has it)")
-    over = bool(np.any(s.acceleration_ratio > 1.0) or np.any(s.jerk_ratio > 1.0))
-    lines.append(f"sent acc/limit {_numbers(s.acceleration_ratio, '.2f')}, jerk/limit "
-                 f"{_numbers(s.jerk_ratio, '.2f')}" + (" (OVER: the robot's guard cuts)"
-                                                       if over else ""))
+        lines.append("σ: not on the bus (see the report)")
+    acc, jerk = _largest(s.acceleration_ratio)[0], _largest(s.jerk_ratio)[0]
+    over = " OVER" if acc > 1.0 or jerk > 1.0 else ""
+    lines.append(f"sent/limit{over}: acc {_ratio(acc)}, jerk {_ratio(jerk)}")
     if not math.isfinite(s.residual_m):
         lines.append("prediction: not measured yet")
     elif s.residual_m > s.residual_warning_m:
-        lines.append(f"PREDICTION OFF: {1000 * s.residual_m:.2f} mm from the measured robot "
-                     "(the model or the link differs)")
+        lines.append(f"PREDICTION OFF by {1000 * s.residual_m:.2f} mm")
     else:
-        lines.append(f"prediction: {1000 * s.residual_m:.3f} mm from the measured robot")
+        lines.append(f"prediction: {1000 * s.residual_m:.3f} mm off")
     if math.isfinite(s.realtime_rate):
         lines.append(f"real time {s.realtime_rate:.2f}×, late ticks {int(s.late_ticks)}")
     return lines

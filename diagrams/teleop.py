@@ -301,6 +301,7 @@ def MakeOperatorDiagram(scenario: Scenario, *, lcm, console, display=None,
                  "saturated": console.get_saturated_output_port(),
                  "ik_status": ik.get_ik_status_output_port(),
                  "q_sent": positions.get_q_sent_output_port(),
+                 "sent_sequence": positions.get_sequence_number_output_port(),
                  "collision": values.GetOutput("collision_detected"),
                  "holding": values.GetOutput("holding"),
                  "min_distance": values.GetOutput("min_distance")}

@@ -169,6 +169,7 @@ class OperatorDisplay(LeafSystem):
         - holding
         - sigma
         - q_sent
+        - sent_sequence (optional)
         - q_received
         - tool_received
         - q_predicted
@@ -207,7 +208,7 @@ class OperatorDisplay(LeafSystem):
         self._ik_names = ik_names or {}
         sizes = {"q_planning": n, "hand_pose": m, "enable": 1, "stop": 1, "notice": 1,
                  "saturated": 1, "collision": 1, "min_distance": 1, "ik_status": 1,
-                 "holding": 1, "sigma": n, "q_sent": n, "q_received": n, "tool_received": 3,
+                 "holding": 1, "sigma": n, "q_sent": n, "sent_sequence": 1, "q_received": n, "tool_received": 3,
                  "q_predicted": n, "telemetry_age": 1, "telemetry_silence": 1, "residual": 1,
                  "robot_guard_mode": 1, "robot_stream_distance": 1}
         self._inputs = {name: self.DeclareVectorInputPort(name, size)
@@ -215,7 +216,8 @@ class OperatorDisplay(LeafSystem):
         self.DeclarePeriodicPublishEvent(period_s, 0.5 * period_s, self._publish)
         self.DeclareForcedPublishEvent(self._publish)
         # What the drawing remembers between frames (the page's state, not the chain's).
-        self._sent: list[np.ndarray] = []
+        self._sent: list[np.ndarray] = []     # the last packets' q, consecutive
+        self._sent_sequence = math.nan
         self._trail: list[np.ndarray] = []
         self._rows: list[str] = []
         self._rows_time = -math.inf
@@ -265,6 +267,7 @@ class OperatorDisplay(LeafSystem):
             (fifo.get_holding_output_port(), "holding"),
             (smoother.get_sigma_output_port(), "sigma"),
             (uplink.get_q_sent_output_port(), "q_sent"),
+            (uplink.get_sequence_number_output_port(), "sent_sequence"),
         ]
         for name in ("q_received", "tool_received", "q_predicted", "telemetry_age",
                      "telemetry_silence", "residual", "robot_guard_mode",
@@ -291,7 +294,7 @@ class OperatorDisplay(LeafSystem):
         now = context.get_time()
         value = self._value
         collision = value(context, "collision")[0] > 0.5
-        ik_status = int(value(context, "ik_status")[0])
+        ik_status = int(value(context, "ik_status", 0.0)[0])
         rgba = (COLLISION_RGBA if collision else
                 IK_HELD_RGBA if ik_status not in (0, 1) else PLANNING_RGBA)
         if rgba is not self._planning_rgba:
@@ -313,10 +316,7 @@ class OperatorDisplay(LeafSystem):
             if len(self._trail) >= 2 and now - self._trail_time >= self._trail_period - 1e-9:
                 meshcat.SetLine("/operator/trail", np.array(self._trail).T, 2.0, TRAIL_RGBA)
                 self._trail_time = now
-        q_sent = value(context, "q_sent")
-        if not self._sent or np.any(q_sent != self._sent[-1]):
-            self._sent.append(q_sent)
-            del self._sent[:-8]
+        self._record_sent(value(context, "q_sent"), value(context, "sent_sequence")[0])
         if now - self._rows_time >= self._status_period - 1e-9:
             self._status(context)
             self._rows_time = now
@@ -324,12 +324,30 @@ class OperatorDisplay(LeafSystem):
             meshcat.SetRealtimeRate(self.clock.realtime_rate)
         self.frames += 1
 
+    def _record_sent(self, q_sent, sequence) -> None:
+        """Keeps the last packets for the finite differences: one entry per packet (a hold
+        repeats its q), consecutive (a missed sequence number starts afresh, since the
+        differences need equally spaced packets). Without ``sent_sequence`` (NaN) a packet
+        is a change of ``q_sent``."""
+        if not np.all(np.isfinite(q_sent)):
+            return
+        if math.isnan(sequence):
+            new = not self._sent or bool(np.any(q_sent != self._sent[-1]))
+        else:
+            new = sequence != self._sent_sequence
+            if new and sequence != self._sent_sequence + 1:
+                self._sent.clear()
+            self._sent_sequence = sequence
+        if new:
+            self._sent.append(np.array(q_sent))
+            del self._sent[:-8]
+
     def status(self, context) -> StatusInputs:
         """The status panel's inputs now."""
         value = self._value
         acc, jerk = fd_ratios(np.array(self._sent), self._uplink_period,
                               self._max_acceleration, self._max_jerk)
-        ik_status = int(value(context, "ik_status")[0])
+        ik_status = int(value(context, "ik_status", 0.0)[0])
         return StatusInputs(
             enabled=value(context, "enable")[0] > 0.5, stop=value(context, "stop")[0] > 0.5,
             notice=int(value(context, "notice", 0.0)[0]),

@@ -15,6 +15,8 @@ Before a message arrives their outputs are NaN: nothing is invented.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
@@ -85,7 +87,8 @@ class HapticCommandSender(LeafSystem):
 
 
 class JointCommandPositions(LeafSystem):
-    r"""The positions of the newest uplink packet the ground sent (NaN before one).
+    r"""The positions and sequence number of the newest uplink packet the ground sent (NaN
+    before one).
 
     .. pydrake_system::
 
@@ -94,6 +97,7 @@ class JointCommandPositions(LeafSystem):
         - lcm_message
         output_ports:
         - q_sent
+        - sequence_number
 
     A packet of another arm (a joint count that is not ``num_joints``) reads as NaN.
     """
@@ -104,6 +108,8 @@ class JointCommandPositions(LeafSystem):
         self._input = self.DeclareAbstractInputPort(
             "lcm_message", AbstractValue.Make(lcmt_teleop_joint_command()))
         self._output = self.DeclareVectorOutputPort("q_sent", self._n, self._calc)
+        self._sequence_output = self.DeclareVectorOutputPort("sequence_number", 1,
+                                                             self._calc_sequence)
 
     def get_lcm_message_input_port(self):
         return self._input
@@ -111,11 +117,21 @@ class JointCommandPositions(LeafSystem):
     def get_q_sent_output_port(self):
         return self._output
 
+    def get_sequence_number_output_port(self):
+        return self._sequence_output
+
+    def _usable(self, msg) -> bool:
+        return (len(msg.joint_position_smoothed) == self._n and msg.seq >= 0
+                and msg.num_joints == self._n)
+
+    def _calc_sequence(self, context, output):
+        msg = self._input.Eval(context)
+        output.SetAtIndex(0, float(msg.seq) if self._usable(msg) else math.nan)
+
     def _calc(self, context, output):
         msg = self._input.Eval(context)
-        q = np.asarray(msg.joint_position_smoothed, dtype=float)
-        output.SetFromVector(q if q.shape == (self._n,) and msg.seq >= 0
-                             and msg.num_joints == self._n else np.full(self._n, np.nan))
+        output.SetFromVector(np.asarray(msg.joint_position_smoothed, dtype=float)
+                             if self._usable(msg) else np.full(self._n, np.nan))
 
 
 class CollisionEventValues(LeafSystem):

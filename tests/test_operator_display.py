@@ -250,3 +250,54 @@ def test_the_sdf_pose_text_parser_reads_what_rod_pose_writes():
     assert re.fullmatch(r"0\.25 0 0 0 1\.57079632679 0", text)
     pose = pose_from_sdf_text(text)
     np.testing.assert_allclose(pose.rotation().matrix()[:, 2], [1.0, 0.0, 0.0], atol=1e-11)
+
+
+# --- OperatorDisplay: the sent commands' finite differences --------------------------------
+
+
+class QuietMeshcat(RecordingMeshcat):
+    """RecordingMeshcat that also takes the display's other calls (camera, lines, buttons)."""
+
+    def __getattr__(self, name):
+        return lambda *args, **kwargs: None
+
+
+def test_the_displayed_fd_ratios_count_every_packet_a_hold_repeats_and_restart_after_a_gap():
+    # Catches: packets recorded only when q_sent changes (a hold's repeated packets dropped,
+    # so the differences span unequal times and a finished motion still shows its
+    # acceleration), a packet counted once per display frame instead of once, differences
+    # taken across a missed sequence number.
+    from telesmooth.systems.operator_display import OperatorDisplay
+
+    period, a_max, j_max = 0.25, np.array([2.0, 1.0, 1.0]), np.array([4.0, 1.0, 1.0])
+    display = OperatorDisplay(QuietMeshcat(), AIR_BEARING_ARM_3DOF,
+                              pose_names=("x_m", "y_m", "phi_rad"), period_s=0.04,
+                              uplink_period_s=period, max_acceleration=a_max,
+                              max_jerk=j_max, residual_warning_m=1e-4)
+    context = display.CreateDefaultContext()
+
+    def send(sequence, q0, frames=3):
+        display.get_input("q_sent").FixValue(context, [q0, 0.0, 0.0])
+        display.get_input("sent_sequence").FixValue(context, [float(sequence)])
+        for _ in range(frames):                   # the display sees each packet many times
+            display.ForcedPublish(context)
+        status = display.status(context)
+        return status.acceleration_ratio[0], status.jerk_ratio[0]
+
+    # Joint 0 at 0, 0.01, 0.03, 0.06: second differences 0.01, third 0 (by hand).
+    for k, q0 in enumerate((0.0, 0.01, 0.03)):
+        send(k, q0)
+    acc, jerk = send(3, 0.06)
+    assert acc == pytest.approx(0.01 / period**2 / 2.0, rel=1e-12)
+    assert jerk == pytest.approx(0.0, abs=1e-9)
+    # Held at 0.06: every 4 packets later all differences over the last packets still
+    # include the stop at 0.06 (0.06 − 2·0.06 + 0.03 = −0.03 is the largest second one).
+    acc, jerk = send(4, 0.06)
+    assert acc == pytest.approx(0.03 / period**2 / 2.0, rel=1e-12)
+    # A gap (sequence 6 missing): the history starts afresh, nothing to difference yet.
+    acc, jerk = send(7, 0.5)
+    assert (acc, jerk) == (0.0, 0.0)
+    acc, jerk = send(8, 0.5)
+    assert (acc, jerk) == (0.0, 0.0)
+    acc, jerk = send(9, 0.5)
+    assert (acc, jerk) == (0.0, 0.0)
