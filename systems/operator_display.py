@@ -208,7 +208,8 @@ class OperatorDisplay(LeafSystem):
         self._ik_names = ik_names or {}
         sizes = {"q_planning": n, "hand_pose": m, "enable": 1, "stop": 1, "notice": 1,
                  "saturated": 1, "collision": 1, "min_distance": 1, "ik_status": 1,
-                 "holding": 1, "sigma": n, "q_sent": n, "sent_sequence": 1, "q_received": n, "tool_received": 3,
+                 "holding": 1, "sigma": n, "q_sent": n, "sent_sequence": 1, "q_received": n,
+                 "tool_received": 3,
                  "q_predicted": n, "telemetry_age": 1, "telemetry_silence": 1, "residual": 1,
                  "robot_guard_mode": 1, "robot_stream_distance": 1}
         self._inputs = {name: self.DeclareVectorInputPort(name, size)

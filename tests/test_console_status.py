@@ -123,7 +123,8 @@ def test_every_line_fits_the_panel_in_the_longest_states():
     six = np.array([1.2e-3, 9.9e4, 3.0e-6, 1.0, 2.0, 3.0])
     worst = NOMINAL._replace(
         enabled=False, notice=int(ConsoleNotice.GAMEPAD_LOST), saturated=True,
-        telemetry_silence_s=1234.5, robot_guard_mode=int(max(GuardMode, key=lambda mode: len(mode.label))),
+        telemetry_silence_s=1234.5,
+        robot_guard_mode=int(max(GuardMode, key=lambda mode: len(mode.label))),
         stream_distance_rad=12.3456, holding=True, collision=True,
         ik_failure=max((status.name.lower().replace("_", " ") for status in IkStatus), key=len),
         sigma=six,
