@@ -91,6 +91,8 @@ def status_lines(s: StatusInputs) -> list[str]:
     else:
         clutch = _RELEASED.get(ConsoleNotice(int(s.notice)), "clutch released: Space to drive")
     lines = [clutch]
+    # Without telemetry the robot's guard and the prediction's check are only as last heard.
+    silent = not (s.telemetry_silence_s <= s.link_timeout_s)
     if not math.isfinite(s.telemetry_silence_s):
         lines.append("link: NO TELEMETRY yet")
     elif s.telemetry_silence_s > s.link_timeout_s:
@@ -99,7 +101,8 @@ def status_lines(s: StatusInputs) -> list[str]:
         lines.append(f"link up: telemetry {1000 * s.telemetry_age_s:.0f} ms old")
     if s.robot_guard_mode >= 0:
         mode = GuardMode(int(s.robot_guard_mode)).label
-        lines.append(f"robot guard: {mode}, {1000 * s.stream_distance_rad:.1f} mrad off")
+        lines.append(f"robot guard: {mode} when last heard" if silent else
+                     f"robot guard: {mode}, {1000 * s.stream_distance_rad:.1f} mrad off")
     fifo = "FIFO HOLD" if s.holding else "FIFO moving"
     if s.collision:
         presim = "COLLISION"
@@ -121,6 +124,8 @@ def status_lines(s: StatusInputs) -> list[str]:
     lines.append(f"sent/limit{over}: acc {_ratio(acc)}, jerk {_ratio(jerk)}")
     if not math.isfinite(s.residual_m):
         lines.append("prediction: not measured yet")
+    elif silent:
+        lines.append("prediction: unchecked (no telemetry)")
     elif s.residual_m > s.residual_warning_m:
         lines.append(f"PREDICTION OFF by {1000 * s.residual_m:.2f} mm")
     else:

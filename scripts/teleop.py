@@ -163,7 +163,7 @@ def _run_live(name: str, simulator, monitor, display, duration_s, progress) -> N
             target = min(end, simulator.get_context().get_time() + SLICE_S)
             simulator.AdvanceTo(target)
             display.clock.realtime_rate = monitor.statistics(last_s=1.0).realtime_rate
-            display.clock.late_ticks = monitor.statistics().late_ticks
+            display.clock.late_ticks = monitor.late_ticks
             if target >= next_progress - 1e-9:
                 _log(progress())
                 next_progress += PROGRESS_PERIOD_S
@@ -271,7 +271,7 @@ def _progress_line(handles, context, monitor) -> str:
             f"telemetry {1000 * view.telemetry_age_s:.0f} ms old")
     guard = ("—" if view.guard_mode < 0 else GuardMode(int(view.guard_mode)).label)
     return (f"teleop: t = {context.get_time():6.1f} s, real time {stats.realtime_rate:.2f}×, "
-            f"late ticks {monitor.statistics().late_ticks} (worst {1000 * stats.worst_s:.0f} "
+            f"late ticks {monitor.late_ticks} (worst {1000 * stats.worst_s:.0f} "
             f"ms), link: {link}, robot guard {guard}, clutch {clutch}, prediction residual "
             + ("—" if not math.isfinite(view.residual_m) else f"{1000 * view.residual_m:.2f} mm"))
 

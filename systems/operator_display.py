@@ -237,7 +237,8 @@ class OperatorDisplay(LeafSystem):
         self._planning_rgba = PLANNING_RGBA
         meshcat.SetObject("/operator/hand", Sphere(0.015), HAND_RGBA)
         if self._planar:
-            meshcat.SetCameraPose(np.array([0.45, -0.05, 2.4]), np.array([0.45, 0.0, 0.0]))
+            # Above the arm, the workspace filling most of the page left of the controls.
+            meshcat.SetCameraPose(np.array([0.62, -0.05, 1.7]), np.array([0.62, 0.0, 0.0]))
         else:
             meshcat.SetCameraPose(np.array([1.8, -1.6, 1.4]), np.array([0.4, 0.0, 0.4]))
 

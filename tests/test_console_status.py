@@ -67,6 +67,16 @@ def test_the_link_line_says_no_telemetry_after_the_timeout_and_not_before():
     assert lines(telemetry_silence_s=math.nan)[1] == "link: NO TELEMETRY yet"
 
 
+def test_without_telemetry_the_guard_and_the_prediction_say_they_are_not_current():
+    # Catches: the last guard distance and prediction residual shown as if measured now
+    # while the link is silent (they are as last heard).
+    silent = lines(telemetry_silence_s=3.2, robot_guard_mode=int(GuardMode.HELD))
+    assert silent[2] == "robot guard: held when last heard"
+    assert silent[6] == "prediction: unchecked (no telemetry)"
+    assert lines(telemetry_silence_s=1.0)[2] == NOMINAL_LINES[2]
+    assert lines(telemetry_silence_s=1.0)[6] == NOMINAL_LINES[6]
+
+
 def test_the_guard_line_names_the_mode_and_is_absent_when_unknown():
     # Catches: the mode shown as a number, a guard line for a chain without a robot guard.
     assert lines(robot_guard_mode=int(GuardMode.HELD))[2] == "robot guard: held, 1.2 mrad off"
