@@ -11,9 +11,12 @@ report (``telesmooth teleop --out DIR``).
                                  the residual
     commands.csv, received.csv,  as ``simulate`` writes them
     telemetry.csv, targets.csv
+    ticks.csv                    every haptic tick against the wall clock: its simulated
+                                 instant, the wall clock then (s from the first tick), how
+                                 late it ran
     metrics.json, report.md      the figures of ``simulate`` for the session, the session's
-                                 timing (real-time rate, late ticks) and the prediction's
-                                 residual, with figures
+                                 timing (real-time rate, late ticks, timing.png) and the
+                                 prediction's residual, with figures
 """
 
 from __future__ import annotations
@@ -170,7 +173,8 @@ def _session_timing(monitor) -> dict:
         return {}
     stats = monitor.statistics()
     return dict(ticks=stats.ticks, late_ticks=stats.late_ticks, worst_lateness_s=stats.worst_s,
-                p99_lateness_s=stats.p99_s, realtime_rate=stats.realtime_rate)
+                p99_lateness_s=stats.p99_s, realtime_rate=stats.realtime_rate,
+                period_s=monitor.period_s)
 
 
 def _timing_text(session: dict) -> str:
@@ -178,8 +182,44 @@ def _timing_text(session: dict) -> str:
         return ""
     return (f"Timing: {session['realtime_rate']:.3f}× real time over the session; "
             f"{session['late_ticks']} of {session['ticks']} haptic ticks ran more than one "
-            f"period (10 ms) late; the latest by {1000 * session['worst_lateness_s']:.1f} ms "
-            f"(99th percentile {1000 * session['p99_lateness_s']:.1f} ms).")
+            f"period ({1000 * session['period_s']:g} ms) late; the latest by "
+            f"{1000 * session['worst_lateness_s']:.1f} ms (99th percentile "
+            f"{1000 * session['p99_lateness_s']:.1f} ms; ticks.csv, timing.png).")
+
+
+def _tick_lateness(monitor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each tick's simulated instant, wall clock from the first tick and lateness, s."""
+    sim_t, wall_t = np.array(monitor.sim_t_s), np.array(monitor.wall_t_s)
+    if sim_t.size == 0:
+        return sim_t, wall_t, wall_t
+    wall = wall_t - wall_t[0]
+    return sim_t, wall, wall - (sim_t - sim_t[0]) / monitor.rate
+
+
+def _write_timing(out: Path, monitor) -> list[tuple[str, str]]:
+    """ticks.csv and timing.png (nothing without a monitor)."""
+    if monitor is None or not monitor.sim_t_s:
+        return []
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from telesmooth.scripts.figures import FigureWriter
+
+    sim_t, wall, lateness = _tick_lateness(monitor)
+    _write_csv(out / "ticks.csv", ["t", "wall_s", "lateness_s"],
+               ([float(a), float(b), float(c)] for a, b, c in zip(sim_t, wall, lateness)))
+    writer = FigureWriter(out)
+    fig, ax = plt.subplots(figsize=(9, 2.6))
+    ax.plot(sim_t, 1000 * lateness, color="C0", lw=0.8)
+    ax.axhline(1000 * monitor.period_s, color="C3", ls="--", lw=0.8,
+               label=f"one haptic period ({1000 * monitor.period_s:g} ms): later is late")
+    ax.set_ylabel("lateness [ms]")
+    ax.set_xlabel("simulated time [s]")
+    ax.legend(fontsize=7, loc="upper right")
+    writer.save(fig, "timing.png", "Each haptic tick against the wall clock: how late it ran")
+    return writer.figures
 
 
 def _prediction_text(prediction) -> str:
@@ -208,7 +248,8 @@ def write_operator_report(out: Path, handles, context, *, monitor=None) -> Path:
                    "robot_minus_operator_s": clock.robot_minus_local,
                    "robot_minus_ground_s": clock.robot_minus_ground}}
     write_text(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
-    figures = _residual_figure(out, residuals, handles.scenario.predictor.residual_warning_m)
+    figures = (_residual_figure(out, residuals, handles.scenario.predictor.residual_warning_m)
+               + _write_timing(out, monitor))
     lines = ["# telesmooth operator", "",
              "The console alone: the operator's hand went out on TELEOP_HAPTIC_COMMAND; the "
              "ground's packets and the robot's telemetry came back over the bus. What the "
@@ -238,6 +279,7 @@ def write_teleop_report(out: Path, handles, context, *, monitor=None) -> Path:
     warning = scenario.predictor.residual_warning_m
 
     def text_of(figures):
-        return _report_text(metrics, list(figures) + _residual_figure(out, residuals, warning))
+        return _report_text(metrics, list(figures) + _residual_figure(out, residuals, warning)
+                            + _write_timing(out, monitor))
 
     return write_record_report(out, record, text_of)

@@ -71,3 +71,27 @@ def test_the_monitor_records_each_tick_and_counts_late_ones_as_it_goes():
     assert recent.worst_s == pytest.approx(0.025, abs=1e-9)
     assert recent.realtime_rate == pytest.approx(0.01 / 0.03, rel=1e-9)
 
+
+
+def test_the_session_writes_each_ticks_lateness_and_says_the_period(tmp_path):
+    # Catches: ticks.csv with the lateness counted from wall time 0 or from each tick's
+    # predecessor, a report line that names another period than the monitor's.
+    import csv
+
+    from telesmooth.scripts.teleop_report import _session_timing, _timing_text, _write_timing
+
+    monitor = WallClockMonitor(0.01, clock=ScriptedClock(WALL))
+    Simulator(monitor).AdvanceTo(0.045)
+    figures = _write_timing(tmp_path, monitor)
+    assert [name for _, name in figures] == ["timing.png"]
+    assert (tmp_path / "timing.png").stat().st_size > 0
+    with open(tmp_path / "ticks.csv") as handle:
+        rows = list(csv.DictReader(handle))
+    np.testing.assert_allclose([float(r["wall_s"]) for r in rows],
+                               [0.0, 0.01, 0.035, 0.035, 0.065], rtol=0, atol=1e-9)
+    np.testing.assert_allclose([float(r["lateness_s"]) for r in rows],
+                               [0.0, 0.0, 0.015, 0.005, 0.025], rtol=0, atol=1e-9)
+    text = _timing_text(_session_timing(monitor))
+    assert "2 of 5 haptic ticks ran more than one period (10 ms) late" in text
+    assert "the latest by 25.0 ms" in text
+    assert _write_timing(tmp_path / "none", None) == []
