@@ -38,7 +38,7 @@ from telesmooth.lcm_types import decode_exact
 from telesmooth.link.udpm_receiver import DEFAULT_MAX_MESSAGE_BYTES, UdpmReceiver
 
 __all__ = ["DEFAULT_MAX_MESSAGE_BYTES", "DEFAULT_QUEUE_CAPACITY", "RECENT_PACKETS",
-           "LcmSafeSubscriber"]
+           "LcmSafeSubscriber", "Packets"]
 
 _logger = logging.getLogger(__name__)
 
@@ -47,6 +47,21 @@ _FINGERPRINT_BYTES = 8
 
 # Layout of the discrete status state.
 _MESSAGE_COUNT, _UNDECODABLE_COUNT, _NEWEST_UNDECODABLE, _DROPPED_COUNT = range(4)
+
+
+class Packets(tuple):
+    """Raw packets ``(number, bytes)`` as an abstract state or output value: a tuple that a
+    Context's copy shares instead of copying. Drake clones abstract values at every update
+    (pydrake with ``copy.deepcopy``); the packets are immutable, and a deep copy of a
+    256-packet window at every step of the operator's process was a quarter of its CPU."""
+
+    __slots__ = ()
+
+    def __deepcopy__(self, memo):
+        return self
+
+    def __copy__(self):
+        return self
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,7 +73,7 @@ class _Received:
     newest_undecodable: bool = False
     message_bytes: bytes = b""      # the newest packet that decoded (b"": none yet)
     last_error: str = ""            # why the newest undecodable packet did not decode
-    recent: tuple = ()              # the last RECENT_PACKETS raw packets, (index, bytes)
+    recent: Packets = Packets()     # the last RECENT_PACKETS raw packets, (index, bytes)
 
 
 RECENT_PACKETS = 256
@@ -98,11 +113,11 @@ class _Inbox:
         packet = previous.message_count + previous.undecodable_count + 1
         if len(data) > self._max_message_bytes:
             # Refused unread: neither decoded nor kept (the window holds an empty stand-in).
-            recent = (previous.recent + ((packet, b""),))[-RECENT_PACKETS:]
+            recent = Packets((previous.recent + ((packet, b""),))[-RECENT_PACKETS:])
             problem = (f"{len(data)} bytes, more than the {self._max_message_bytes}-byte bound "
                        "of a message (not decoded)")
         else:
-            recent = (previous.recent + ((packet, bytes(data)),))[-RECENT_PACKETS:]
+            recent = Packets((previous.recent + ((packet, bytes(data)),))[-RECENT_PACKETS:])
             try:
                 problem = self._why_undecodable(bytes(data))
             except Exception as error:  # noqa: BLE001 - nothing may escape into the C callback
@@ -244,7 +259,7 @@ class LcmSafeSubscriber(LeafSystem):
             raise ValueError(f"lcm = {lcm!r} must be a pydrake DrakeLcm or an lcm.LCM")
         self._bytes_state = self.DeclareAbstractState(AbstractValue.Make(b""))
         self._error_state = self.DeclareAbstractState(AbstractValue.Make(""))
-        self._packets_state = self.DeclareAbstractState(AbstractValue.Make(()))
+        self._packets_state = self.DeclareAbstractState(AbstractValue.Make(Packets()))
         # [message_count, undecodable_count, message_undecodable, dropped_count (NaN: the
         # transport does not tell)].
         self._status_state = self.DeclareDiscreteState(

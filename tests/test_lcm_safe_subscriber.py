@@ -1,5 +1,7 @@
 """LcmSafeSubscriber: malformed packets are counted and flagged, never raised (memq:// only)."""
 
+import copy as copy_module
+
 import numpy as np
 import pytest
 from process_fixtures import worker_port
@@ -149,6 +151,32 @@ def test_several_packets_between_two_steps_keep_the_newest_good_one():
     harness.send(b"junk", _command(2, [0.5, 0.6]))
     assert harness.message().seq == 2
     assert harness.counts() == (3, 2, 0)
+
+
+def test_the_packets_window_is_shared_not_copied_by_a_contexts_copy():
+    # Catches: the raw-packet window stored as a plain tuple, which Drake's clone of the
+    # abstract state deep-copies at every update (a quarter of the operator process's CPU
+    # with a 256-packet window); and a window whose sharing loses or reorders packets.
+    harness = Harness()
+    harness.send(_command(0, [0.1, 0.2]), b"junk", _command(1, [0.3, 0.4]))
+    packets = harness.dut.get_packets_output_port().Eval(harness.context)
+    assert [number for number, _ in packets] == [1, 2, 3]
+    assert packets[1][1] == b"junk"
+    root = harness.simulator.get_context().Clone()
+    copied = harness.dut.get_packets_output_port().Eval(harness.dut.GetMyContextFromRoot(root))
+    assert copied == packets
+    # A deep copy of the window's type does not go through its elements (a plain tuple's
+    # does, every element, every update, even though it returns the same tuple in the end).
+    visits = []
+
+    class Probe:
+        def __deepcopy__(self, memo):
+            visits.append(1)
+            return self
+
+    window = type(packets)(list(packets) + [Probe()])
+    assert copy_module.deepcopy(window) is window
+    assert visits == []
 
 
 def test_good_packets_give_the_same_output_at_the_same_time_as_lcm_subscriber_system():
