@@ -24,7 +24,8 @@ methods: venv
 	$(BIN)/telesmooth demo --out out/methods
 
 # Two workers (the suite's files spread over both cores; each file's tests stay on one worker,
-# so a module's process fixture runs once). `pytest -m "not process"` skips the real processes.
+# so a module's process fixture runs once). `.venv/bin/python -m pytest -q -m "not process"`
+# skips the real processes.
 test: venv
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile
 

@@ -80,3 +80,15 @@ def test_the_six_dof_arm_runs_live(tmp_path, capsys):
     header = (tmp_path / "session" / "operator.csv").read_text().splitlines()[0]
     assert header == "t,x_m,y_m,z_m,roll_rad,pitch_rad,yaw_rad,enable"
     assert "# telesmooth teleop" in (tmp_path / "session" / "report.md").read_text()
+
+
+def test_the_scripted_operator_drives_only_a_page_on_this_machine(capsys):
+    # Catches: a scripted operator pointed at another machine's console (it would drive
+    # someone's robot over the network).
+    from telesmooth.scripts.browser_operator import main as browser_operator
+
+    with pytest.raises(SystemExit) as raised:
+        browser_operator(["--url", "http://10.0.0.7:7000/"])
+    assert raised.value.code == 2
+    assert "--url = 'http://10.0.0.7:7000/': only a page on this machine" in (
+        capsys.readouterr().err)
