@@ -202,7 +202,7 @@ class OperatorHandles:
 
 
 def MakeOperatorDiagram(scenario: Scenario, *, lcm, console, display=None,
-                        monitor=None) -> OperatorHandles:
+                        monitor=None, wall_clock=None) -> OperatorHandles:
     """The console alone, on the bus (docs/operator.md: operator, ground and onboard as three
     processes):
 
@@ -215,6 +215,10 @@ def MakeOperatorDiagram(scenario: Scenario, *, lcm, console, display=None,
       (TELEOP_COLLISION_EVENT), the robot's telemetry (ONBOARD_JOINT_STATUS) → the predicted
       robot (its copy on the robot's clock, :class:`~telesmooth.systems.robot_predictor.
       RemoteClock`) and the display.
+
+    ``wall_clock`` (a monotonic clock, s; the live process passes ``time.perf_counter``) is
+    what the predictor estimates the robot's clock against; None: this diagram's simulated
+    time (see :class:`~telesmooth.systems.robot_predictor.RobotPredictor`).
     """
     from pydrake.systems.lcm import LcmInterfaceSystem, LcmPublisherSystem
 
@@ -276,7 +280,7 @@ def MakeOperatorDiagram(scenario: Scenario, *, lcm, console, display=None,
         initial_position_rad=q0, uplink_period_s=scenario.uplink.period_s,
         sample_period_s=scenario.onboard.tracker.period_s,
         poll_period_s=scenario.command_receiver.poll_period_s,
-        publish_offset_s=scenario.publish_offset_s))
+        publish_offset_s=scenario.publish_offset_s, wall_clock=wall_clock))
     builder.Connect(telemetry.get_packets_output_port(),
                     predictor.get_telemetry_packets_input_port())
     builder.Connect(commands.get_packets_output_port(),

@@ -17,6 +17,7 @@ import dataclasses
 import math
 import signal
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -136,8 +137,10 @@ def build_operator(scenario, meshcat, lcm, *, monitor=None):
     from telesmooth.diagrams.visualization import draw_workspace
 
     console, display, bind = _console_and_display(scenario, meshcat)
+    # A live process: the predictor reads the robot's clock against the wall clock, not
+    # against this process's simulated time (which lags by however late it runs).
     handles = MakeOperatorDiagram(scenario, lcm=lcm, console=console, display=display,
-                                  monitor=monitor)
+                                  monitor=monitor, wall_clock=time.perf_counter)
     bind(handles.inverse_kinematics)
     draw_workspace(meshcat, scenario.workspace_or_default)
     return handles, console, display

@@ -149,10 +149,10 @@ class RemoteClock:
       the instant the console took the batch), plus half the console's period (the wait of a
       message in its batch, on average). Messages queued while the console was busy are
       older than their batch's newest; a median shrugs off a late batch;
-    * a packet sent at g (ground clock) reaches the robot at g + (the smallest acceptance −
-      send time over the packets the telemetry names as accepted): the copy's packet is
-      given that send time, less half a poll, so that the copy's receiver takes it in the
-      poll the robot's took the first one.
+    * a packet sent at g (ground clock) reaches the robot at g + (the median acceptance −
+      send time over the last packets the telemetry names as accepted, less half a poll):
+      the copy's packet is given that send time, so that the copy's receiver takes it in
+      the poll the robot's took it.
 
     Until the telemetry has named an accepted packet, packets wait (:meth:`ready`).
     """
@@ -163,6 +163,7 @@ class RemoteClock:
         self._publish = float(publish_offset_s)
         self._batch = float(batch_period_s)
         self._offsets: list[float] = []
+        self._ground_offsets: list[float] = []
         self._window = int(window)
         self.robot_minus_local: float | None = None
         self.robot_minus_ground: float | None = None
@@ -189,9 +190,13 @@ class RemoteClock:
 
     def _match(self, seq: int) -> None:
         if seq in self._accepted and seq in self._sent:
-            offset = self._accepted[seq] - self._sent[seq] - 0.5 * self._poll
-            if self.robot_minus_ground is None or offset < self.robot_minus_ground:
-                self.robot_minus_ground = offset
+            # The median over the last packets: a ground process that runs late and catches
+            # up stamps some packets early against its steady offset (the smallest
+            # offset, taken before, put the copy's commands 0.12 s ahead of the robot's
+            # under load); acceptance falls anywhere in a poll, half a poll on average.
+            self._ground_offsets.append(self._accepted[seq] - self._sent[seq])
+            del self._ground_offsets[:-self._window]
+            self.robot_minus_ground = float(np.median(self._ground_offsets)) - 0.5 * self._poll
 
     def ready(self) -> bool:
         return self.robot_minus_local is not None and self.robot_minus_ground is not None
@@ -255,13 +260,20 @@ class RobotPredictor(LeafSystem):
                  initial_position_rad=None, remote: bool = False,
                  sample_period_s: float = 0.01, poll_period_s: float = 0.01,
                  publish_offset_s: float = 0.001, uplink_period_s: float = 0.25,
-                 residual_window_s: float = 2.0, residual_history: int = 100_000):
+                 residual_window_s: float = 2.0, residual_history: int = 100_000,
+                 wall_clock: Callable[[], float] | None = None):
         """Args:
             replica_factory: start pose (J,) → the :class:`PredictorReplica` to run.
             initial_position_rad: The robot's start pose: the copy is built at once (in one
                 process it is required); with ``remote=True`` a robot whose first telemetry
                 says it is commanded elsewhere gets a copy built there (without a start
                 pose, at the first telemetry).
+            wall_clock: On the bus, in a live process: a monotonic clock (s), e.g.
+                ``time.perf_counter``. The robot's clock is then estimated against it
+                instead of this process's simulated time, which lags the wall clock by
+                however late the process runs (a busy machine): predicting on that lag
+                put the copy up to a few hundred milliseconds ahead of the robot, past the
+                packets it had heard. None: the simulated time (one process, tests).
         """
         super().__init__()
         check_period("RobotPredictor.period_s", period_s)
@@ -279,6 +291,8 @@ class RobotPredictor(LeafSystem):
         self._clock = (RemoteClock(poll_period_s=poll_period_s, publish_offset_s=publish_offset_s,
                                    batch_period_s=period_s) if remote else None)
         self._uplink_period = float(uplink_period_s)
+        self._wall_clock = wall_clock
+        self._wall_minus_sim: float | None = None
         self._recent: list[TelemetrySample] = []   # the last seconds of telemetry
         self._ahead_stale = False
         self._pending: list[tuple[int, float, object]] = []
@@ -413,9 +427,19 @@ class RobotPredictor(LeafSystem):
                 continue
         return last_number, decoded
 
+    def _local_time(self, context) -> float:
+        """This process's now (s): its simulated time, or with a ``wall_clock`` the wall
+        clock's, counted from the simulated time of the first update."""
+        if self._wall_clock is None:
+            return context.get_time()
+        wall = float(self._wall_clock())
+        if self._wall_minus_sim is None:
+            self._wall_minus_sim = wall - context.get_time()
+        return wall - self._wall_minus_sim
+
     def _ingest(self, context) -> list[TelemetrySample]:
         """New packets into the copy's log; new telemetry decoded (in arrival order)."""
-        now = context.get_time()
+        now = self._local_time(context)
         self._last_packet_number, statuses = self._decode_new(
             self._telemetry_input.Eval(context), self._last_packet_number,
             lcmt_onboard_joint_status)
@@ -544,8 +568,8 @@ class RobotPredictor(LeafSystem):
         return self._grid * np.ceil(now / self._grid - 1e-9)
 
     def _update(self, context, state) -> None:
-        local = context.get_time()
         samples = self._ingest(context)
+        local = self._local_time(context)
         view = self.view(context)
         newest = self._newest
         for sample in samples:
