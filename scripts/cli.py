@@ -546,18 +546,10 @@ def _add_teleop_parser(subparsers) -> None:
         "a haptic recording, the logs, predicted.csv and report.md.",
     )
     _add_scenario_arguments(p, on_collision_default="stop")
-    p.add_argument("--port", type=int, default=None,
-                   help="port of the page (default: the first free from 7000)")
-    p.add_argument("--host", default="127.0.0.1",
-                   help="interface the page listens on (default 127.0.0.1: this machine "
-                        "only; anything else is reachable from other machines, and says so)")
-    p.add_argument("--duration", type=number, default=None,
-                   help="seconds to run (default: until Ctrl-C)")
+    _add_live_arguments(p, out_help="folder for the session: operator.npz/.csv (your hand, "
+                        "replayable with simulate), logs, predicted.csv, report.md")
     p.add_argument("--realtime", type=number, default=1.0,
                    help="target real-time rate (default 1)")
-    p.add_argument("--out", type=Path, default=None,
-                   help="folder for the session: operator.npz/.csv (your hand, replayable "
-                        "with simulate), logs, predicted.csv, report.md")
     p.set_defaults(handler=run_teleop_command)
 
 
@@ -592,16 +584,21 @@ def _add_operator_parser(subparsers) -> None:
     _add_scenario_arguments(p)
     p.add_argument("--lcm-url", default=None,
                    help=f"LCM URL (default: the scenario's, {DEFAULT_LCM_URL})")
+    _add_live_arguments(p, out_help="folder for the session: operator.npz/.csv, console.csv, "
+                        "predicted.csv, report.md")
+    p.set_defaults(handler=run_operator_command)
+
+
+def _add_live_arguments(p, *, out_help: str) -> None:
+    """The options every live console (``teleop``, ``operator``) takes."""
     p.add_argument("--port", type=int, default=None,
                    help="port of the page (default: the first free from 7000)")
     p.add_argument("--host", default="127.0.0.1",
-                   help="interface the page listens on (default 127.0.0.1: this machine only)")
+                   help="interface the page listens on (default 127.0.0.1: this machine "
+                        "only; anything else is reachable from other machines, and says so)")
     p.add_argument("--duration", type=number, default=None,
                    help="seconds to run (default: until Ctrl-C)")
-    p.add_argument("--out", type=Path, default=None,
-                   help="folder for the session: operator.npz/.csv, console.csv, "
-                        "predicted.csv, report.md")
-    p.set_defaults(handler=run_operator_command)
+    p.add_argument("--out", type=Path, default=None, help=out_help)
 
 
 def _live_scenario(args):

@@ -42,6 +42,7 @@ from telesmooth.scripts.simulate_report import (
     _and,
     _over_limits,
     limits_text,
+    record_limits,
     write_received_csv,
     write_record_report,
 )
@@ -93,15 +94,11 @@ def onboard_record(handles, context, *, wall_time_s: float) -> SimulationRecord:
 def _stream_statistics(record: SimulationRecord) -> dict:
     """FD acceleration and jerk of the accepted packets (after the robot's rest), against
     the limits."""
-    from telesmooth.arms.joint_vectors import as_per_joint
     from telesmooth.smoothing.metrics import finite_differences, limit_statistics
 
     scenario = record.scenario
-    n, names = record.num_joints, record.joint_names
-    a_max = as_per_joint("a_max", scenario.smoother.max_acceleration_rad_per_s2, n, names,
-                         allow_inf=True)
-    j_max = as_per_joint("j_max", scenario.smoother.max_jerk_rad_per_s3, n, names,
-                         allow_inf=True)
+    names = record.joint_names
+    a_max, j_max = record_limits(record)
     sequence = np.vstack([np.tile(record.initial_position_rad, (3, 1)), record.q_sent])
     period = scenario.uplink.period_s
     return {"joint_names": list(names),

@@ -108,7 +108,8 @@ def _write_tables(out: Path, record: SimulationRecord) -> list[str]:
     return written
 
 
-def _limits(record: SimulationRecord):
+def record_limits(record: SimulationRecord):
+    """The scenario's acceleration and jerk limits, one per joint of the record's arm."""
     scenario = record.scenario
     n, names = record.num_joints, record.joint_names
     a_max = as_per_joint("a_max", scenario.smoother.max_acceleration_rad_per_s2, n, names,
@@ -166,7 +167,7 @@ def _acceleration_jerk_figure(plt, writer, record: SimulationRecord, packets: st
     names = record.joint_names
     n = record.num_joints
     period = scenario.uplink.period_s
-    a_max, j_max = _limits(record)
+    a_max, j_max = record_limits(record)
     series = []
     if record.packet_seq is not None and record.packet_seq.size > 3:
         series.append((packets, record.packet_t_s, record.q_sent, "C0"))

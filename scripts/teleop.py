@@ -59,14 +59,31 @@ def _slider_ranges(scenario) -> dict:
             for name, c in zip(("x_m", "y_m", "z_m"), centre)}
 
 
-def open_meshcat(host: str, port: int | None):
+def exposure_warning(host: str) -> str | None:
+    """What to tell the operator when the page listens on ``host``: None for this machine's
+    loopback (``localhost``, 127.0.0.0/8, ::1), a warning for anything else (another
+    interface, every interface)."""
+    import ipaddress
+
+    if host == "localhost":
+        return None
+    try:
+        if ipaddress.ip_address(host).is_loopback:
+            return None
+    except ValueError:
+        pass                                    # a host name: it may resolve anywhere
+    return (f"--host {host}: the operator console is reachable from other machines on that "
+            "interface; anyone who reaches it can drive the robot")
+
+
+def open_meshcat(host: str, port: int | None, command: str = "teleop"):
     """A Meshcat server on ``host`` (``127.0.0.1`` by default: this machine only); a port in
     use is one clear error."""
     from pydrake.geometry import Meshcat, MeshcatParams
 
-    if host not in ("127.0.0.1", "localhost"):
-        _log(f"teleop: warning: --host {host}: the operator console is reachable from other "
-             "machines on that interface; anyone who reaches it can drive the robot")
+    warning = exposure_warning(host)
+    if warning is not None:
+        _log(f"{command}: warning: {warning}")
     try:
         return Meshcat(MeshcatParams(host=host, port=port))
     except RuntimeError as error:
@@ -226,7 +243,7 @@ def run_operator(scenario, *, lcm_url: str, host: str = "127.0.0.1", port: int |
     from telesmooth.systems.wall_clock_monitor import WallClockMonitor
 
     scenario = console_scenario(scenario)
-    meshcat = open_meshcat(host, port)
+    meshcat = open_meshcat(host, port, "operator")
     url = meshcat.web_url().rstrip("/") + "/"
     lcm = DrakeLcm(lcm_url)
     monitor = WallClockMonitor(scenario.haptic.period_s)

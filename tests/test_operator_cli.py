@@ -1,7 +1,8 @@
 """The live console's command line: where the page listens, bad options, a short 6-DOF run.
 
 * Meshcat listens on 127.0.0.1 by default (checked on the socket table); another interface
-  needs --host and prints a warning.
+  needs --host and prints a warning (checked without listening there: tests bind 127.0.0.1
+  only).
 * A port in use, a port out of range, a bad duration, and a scenario key the console does
   not read are each one error line, exit 2, nothing written.
 * `teleop` on the 6-DOF arm runs and writes its session (the planar arm is covered by
@@ -14,7 +15,7 @@ from pathlib import Path
 import pytest
 from bad_input_helpers import assert_one_line_error, run
 
-from telesmooth.scripts.teleop import open_meshcat
+from telesmooth.scripts.teleop import exposure_warning, open_meshcat
 
 
 def _listening_addresses(port: int) -> set:
@@ -40,11 +41,29 @@ def test_the_page_listens_on_this_machine_only_by_default():
     assert _listening_addresses(port) == {"0100007F"}, _listening_addresses(port)
 
 
-def test_another_interface_is_said_out_loud(capsys):
-    meshcat = open_meshcat("0.0.0.0", None)
+@pytest.mark.parametrize("host", ["0.0.0.0", "192.168.1.20", "::", "robot-console.example"])
+def test_another_interface_is_said_out_loud(host):
+    warning = exposure_warning(host)
+    assert warning is not None
+    assert f"--host {host}" in warning and "anyone who reaches it can drive the robot" in warning
+
+
+@pytest.mark.parametrize("host", ["127.0.0.1", "localhost", "127.0.0.2", "::1"])
+def test_this_machine_is_not_warned_about(host):
+    assert exposure_warning(host) is None
+
+
+def test_the_warning_is_printed_before_the_page_opens(capsys, monkeypatch):
+    """Without listening anywhere but here (tests bind 127.0.0.1 only): Meshcat is replaced
+    by a recorder of the parameters it was given."""
+    import pydrake.geometry
+
+    given = []
+    monkeypatch.setattr(pydrake.geometry, "Meshcat", lambda params: given.append(params))
+    open_meshcat("0.0.0.0", 7123, "operator")
     err = capsys.readouterr().err
-    assert "--host 0.0.0.0" in err and "anyone who reaches it can drive the robot" in err
-    assert "00000000" in _listening_addresses(meshcat.port())
+    assert err.startswith("operator: warning: --host 0.0.0.0"), err
+    assert [(p.host, p.port) for p in given] == [("0.0.0.0", 7123)]
 
 
 def test_a_port_in_use_is_one_line(capsys, tmp_path):
