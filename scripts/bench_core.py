@@ -3,8 +3,8 @@
 
 Measured side by side in one run (this machine is noisy; compare ratios, not absolutes).
 Every row runs in a fresh process of its own, and its **peak memory** is that process's
-peak resident set size (``resource.getrusage(RUSAGE_SELF).ru_maxrss``, read at the end of
-the row), given with the resident size before the measured work (Python, numpy, drake and
+peak resident set size (:data:`MEMORY_MEASURE`: Linux's ``VmHWM``, read at the end of the
+row), given with the resident size before the measured work (Python, numpy, drake and
 the row's input data: the "baseline"):
 
 * Offline-CKS for 6 joints at N = 10² … 10⁶ in both constraint modes, the Drake
@@ -108,6 +108,12 @@ def resident_mb() -> float:
             return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
     except OSError:        # not Linux: the peak so far is the best we know
         return peak_resident_mb()
+
+
+MEMORY_MEASURE = ("peak resident set size of the row's own process (VmHWM of /proc/self/status; "
+                  "getrusage's ru_maxrss where there is no /proc) and its resident size before "
+                  "the measured work (baseline)")
+"""What a row's memory figures are, as the JSON states it (:func:`peak_resident_mb`)."""
 
 
 def peak_resident_mb() -> float:
@@ -919,9 +925,7 @@ def _run(args, out: Path) -> str:
                           "cpus": os.cpu_count(),
                           "load_average": list(os.getloadavg()) if hasattr(
                               os, "getloadavg") else None},
-              "memory_measure": "peak resident set size of the row's own process "
-                                "(getrusage(RUSAGE_SELF).ru_maxrss) and its resident size "
-                                "before the measured work (baseline)",
+              "memory_measure": MEMORY_MEASURE,
               "offline_cks": offline, "online_step": online,
               "simulation": simulation or {}, "experiment": experiment or {}}
     write_text(out / "bench_core.json", json.dumps(report, indent=2) + "\n")

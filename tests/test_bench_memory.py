@@ -39,3 +39,26 @@ def test_the_parent_process_memory_does_not_count():
     row = in_fresh_process(_nothing)
     assert held[-1] == 1.0
     assert row["peak_above_baseline_mb"] <= 16
+
+
+def test_the_stated_measure_is_the_one_read():
+    """The JSON's ``memory_measure`` names what :func:`peak_resident_mb` reads: on Linux the
+    high-water mark ``VmHWM`` of /proc/self/status, read here independently."""
+    from pathlib import Path
+
+    from telesmooth.scripts.bench_core import MEMORY_MEASURE, peak_resident_mb
+
+    assert "VmHWM" in MEMORY_MEASURE
+    status = Path("/proc/self/status")
+    if not status.exists():
+        return
+    def vm_hwm_mb() -> float:
+        line = next(line for line in status.read_text().splitlines()
+                    if line.startswith("VmHWM:"))
+        return int(line.split()[1]) / 2**10                                  # kB
+
+    before = vm_hwm_mb()
+    figure = peak_resident_mb()
+    after = vm_hwm_mb()
+    # The mark only grows: read between two independent reads, the figure lies between them.
+    assert before <= figure <= after
