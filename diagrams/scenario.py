@@ -48,6 +48,7 @@ from telesmooth.link.faults import LinkFaultConfig
 from telesmooth.systems.collision_checker import CollisionCheckerConfig
 from telesmooth.systems.delay_fifo import DelayFifoConfig
 from telesmooth.systems.flexible_arm import DriveConfig, FlexibleArmConfig
+from telesmooth.systems.haptic_source import RECORDING_PERIOD_RTOL
 from telesmooth.systems.inverse_kinematics import InverseKinematicsConfig
 from telesmooth.systems.joint_command_receiver import JointCommandReceiverConfig
 from telesmooth.systems.link_guard import LinkGuardConfig
@@ -370,6 +371,10 @@ def make_haptic_recording(scenario: Scenario) -> HapticRecording | None:
         # The pose names carry the units: a planar pose, or (for the 6-DOF arm) a spatial one.
         allowed = [PLANAR_POSE_NAMES] + ([SPATIAL_POSE_NAMES] if scenario.arm == "space_arm"
                                          else [])
+        if tuple(recording.pose_names) == SPATIAL_POSE_NAMES and scenario.arm != "space_arm":
+            raise ValueError(
+                f"haptic.file = {quote_path(str(path))}: a 6-DOF pose (x_m … yaw_rad) needs "
+                f"arm: space_arm; the arm {scenario.arm!r} reads {list(PLANAR_POSE_NAMES)}")
         if tuple(recording.pose_names) not in allowed:
             raise ValueError(
                 f"haptic.file = {quote_path(str(path))}: the pose columns "
@@ -377,6 +382,12 @@ def make_haptic_recording(scenario: Scenario) -> HapticRecording | None:
                 f"are not a pose of the arm {scenario.arm!r}; expected "
                 + " or ".join(str(list(names)) for names in allowed)
                 + " (metres and radians)")
+        if abs(recording.period_s - haptic.period_s) > RECORDING_PERIOD_RTOL * haptic.period_s:
+            raise ValueError(
+                f"haptic.file = {quote_path(str(path))}: its samples are "
+                f"{recording.period_s:.6g} s apart ({1.0 / recording.period_s:.6g} Hz, from its "
+                f"t column) but haptic.period_s = {haptic.period_s:.6g} s; resample the "
+                f"recording or set haptic.period_s: {recording.period_s:.6g}")
     if scenario.arm == "space_arm" and recording.num_pose == 3:
         recording = HapticRecording(
             t_s=recording.t_s, pose=planar_pose_to_space_arm(recording.pose),

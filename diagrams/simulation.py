@@ -537,6 +537,7 @@ def run_metrics(record: SimulationRecord) -> dict:
         "collision_ticks": int(np.count_nonzero(record.holding > 0.5)),
         "collision_stops": _collision_stops(record),
         "min_distance_m": float(np.min(record.min_distance_m)),
+        "distance_horizon_m": record.scenario.collision_checker.distance_horizon_m,
         "final_sigma": record.sigma[-1].tolist() if record.sigma.size else None,
         "commands": commands,
         "tracking": {

@@ -49,7 +49,7 @@ from telesmooth.smoothing.reduced_q import (
     stored_operators,
 )
 from telesmooth.smoothing.trajectory_io import read_joint_csv, write_joint_csv
-from telesmooth.user_input import name_fields, parse_plain_number, quote
+from telesmooth.user_input import name_fields, parse_plain_number, quote, quote_path
 
 METHOD_CHOICES = METHODS + tuple(METHOD_ALIASES)
 """What a ``--method`` option takes: every method of the registry and its aliases."""
@@ -184,6 +184,18 @@ def _planar_fk(planar_forward_kinematics, link_lengths, q):
     return planar_forward_kinematics(q, link_lengths)
 
 
+def _refuse_a_haptic_recording(path, columns) -> None:
+    """``smooth`` reads joint angles: a file whose columns are a hand's pose (a haptic
+    recording: metres) is one line, not metres smoothed as radians."""
+    from telesmooth.datasets.haptic_recording import PLANAR_POSE_NAMES, SPATIAL_POSE_NAMES
+
+    pose = {name for name in columns if name in PLANAR_POSE_NAMES + SPATIAL_POSE_NAMES}
+    if pose:
+        raise ValueError(
+            f"file = {quote_path(str(path))}: columns {quote(sorted(pose))} are a hand's pose "
+            "(a haptic recording), not joint angles in radians; run `telesmooth simulate` on it")
+
+
 def run_smooth(args) -> int:
     from telesmooth.atomic_files import Outputs
 
@@ -200,6 +212,7 @@ def run_smooth(args) -> int:
         store_path = (None if args.sigma_store is None
                       else outputs.file("--sigma-store", args.sigma_store))
         trajectory = read_joint_csv(args.input, expected_dt_s=args.dt)
+        _refuse_a_haptic_recording(args.input, trajectory.joint_names)
         try:
             result, settings, extra = _smooth(args, trajectory)
         except ValueError as error:

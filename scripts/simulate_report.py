@@ -221,9 +221,24 @@ def _tool_paths_figure(plt, writer, record: SimulationRecord, packets: str) -> N
                 label="operator", zorder=4)
     ax.set_xlabel("xyz"[plane[0]] + " [m]")
     ax.set_ylabel("xyz"[plane[1]] + " [m]")
+    _at_least_span(ax, TOOL_PLOT_MIN_SPAN_M)
     ax.set_aspect("equal", adjustable="datalim")
     ax.legend(fontsize=8)
     writer.save(fig, "end_effector.png", "End-effector tracks")
+
+
+TOOL_PLOT_MIN_SPAN_M = 0.01
+"""The end-effector plot shows at least 1 cm each way (a tool at rest is a point)."""
+
+
+def _at_least_span(ax, span: float) -> None:
+    """Widens each axis of ``ax`` to ``span`` about its centre where its data span less: an
+    equal-aspect plot of data without extent has no scale to keep."""
+    for get, put in ((ax.get_xlim, ax.set_xlim), (ax.get_ylim, ax.set_ylim)):
+        low, high = get()
+        if high - low < span:
+            centre = 0.5 * (low + high)
+            put(centre - 0.5 * span, centre + 0.5 * span)
 
 
 def _error_figures(plt, writer, record: SimulationRecord, packets: str) -> None:
@@ -456,13 +471,22 @@ def _report_text(metrics: dict, figures, meshcat_html: bool = False) -> str:
         f"{1000 * tracking['chain_error_m']['mean']:.2f} / "
         f"{1000 * tracking['chain_error_m']['max']:.2f} mm. Ticks on collision hold: "
         f"{metrics['collision_ticks']}; smallest pre-simulator distance "
-        f"{1000 * metrics['min_distance_m']:.1f} mm."
+        + _distance_text(metrics["min_distance_m"], metrics["distance_horizon_m"]) + "."
         + _stops_text(metrics.get("collision_stops")),
         "",
     ]
     for title, name in figures:
         lines += [f"## {title}", "", f"![{title}]({name})", ""]
     return "\n".join(lines)
+
+
+def _distance_text(distance_m: float, horizon_m: float) -> str:
+    """The pre-simulator's smallest distance; at its horizon (pairs farther apart are not
+    computed) it is a lower bound and says so."""
+    if distance_m >= horizon_m:
+        return (f"at least {1000 * horizon_m:.1f} mm (nothing came within the pre-simulator's "
+                "horizon, collision_checker.distance_horizon_m)")
+    return f"{1000 * distance_m:.1f} mm"
 
 
 def _stops_text(stops) -> str:

@@ -26,7 +26,7 @@ from telesmooth.datasets.synthetic import SyntheticOperatorConfig
 __all__ = ["HapticSource", "HapticSourceConfig"]
 
 # Relative tolerance on recording period == config.period_s.
-_PERIOD_RTOL = 1e-9
+RECORDING_PERIOD_RTOL = 1e-9
 # Added to t / period before flooring, so that a sample time computed by the simulator as
 # k * period (which can land a few ulps below k when divided by period again) selects
 # sample k, not k - 1.
@@ -115,10 +115,10 @@ class HapticSource(LeafSystem):
                 f"config = {config!r}; expected a HapticSourceConfig"
             )
         period_s = config.period_s
-        if abs(recording.period_s - period_s) > _PERIOD_RTOL * period_s:
+        if abs(recording.period_s - period_s) > RECORDING_PERIOD_RTOL * period_s:
             raise ValueError(
                 f"recording period_s = {recording.period_s!r} (from its t_s) differs from "
-                f"config.period_s = {period_s!r} by more than {_PERIOD_RTOL:g} relative; "
+                f"config.period_s = {period_s!r} by more than {RECORDING_PERIOD_RTOL:g} relative; "
                 "resample the recording or set HapticSourceConfig(period_s=...) to match"
             )
         self._recording = recording

@@ -200,6 +200,7 @@ def test_a_haptic_file_in_other_units_or_for_another_arm_is_named(tmp_path):
             scenario_text=f"{{haptic: {{source: file, file: '{millimetres}'}}}}"))
     spatial = write("6dof.csv", ["x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad"],
                     [0.8, 0.1, 0.0, 0.0, 0.0, 0.0])
-    with pytest.raises(ValueError, match=r"6dof.csv.*not a pose of the arm 'air_bearing_arm'"):
+    with pytest.raises(ValueError, match=r"6dof.csv': a 6-DOF pose .* needs arm: space_arm; "
+                                         r"the arm 'air_bearing_arm' reads"):
         make_haptic_recording(load_scenario(
             scenario_text=f"{{haptic: {{source: file, file: '{spatial}'}}}}"))

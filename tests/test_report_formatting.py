@@ -49,3 +49,11 @@ def test_a_run_still_moving_at_its_end_is_not_given_a_settling_time():
     assert experiment_cell(stats, 1.0, "settling", figures) == "1.2 (2.0); 2 not settled"
     assert experiment_cell(stats, 1.0, "settling", {"settled": {"mean": 1.0, "n": 4}}) == \
         "1.2 (2.0)"
+
+
+def test_the_pre_simulators_distance_at_its_horizon_is_a_lower_bound():
+    from telesmooth.scripts.simulate_report import _distance_text
+
+    assert _distance_text(0.0421, 0.2) == "42.1 mm"
+    assert _distance_text(0.2, 0.2).startswith("at least 200.0 mm (nothing came within")
+    assert "distance_horizon_m" in _distance_text(0.2, 0.2)
