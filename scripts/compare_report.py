@@ -15,7 +15,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +24,7 @@ from telesmooth.diagrams.scenario import describe_chain, describe_operator
 from telesmooth.diagrams.simulation import plant_text, tool_positions
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.scripts.formatting import limit_ratio
+from telesmooth.scripts.formatting import log as _log
 from telesmooth.smoothing.methods import METHODS
 from telesmooth.smoothing.metrics import finite_differences
 from telesmooth.smoothing.offline import HISTORY_LENGTH, with_rest_history
@@ -36,10 +36,6 @@ from telesmooth.studies.comparison import (
 
 __all__ = ["SUMMARY_LOG_PANELS", "TABLES", "comparison_table", "guard_table_markdown",
            "summary_figure", "table_markdown", "write_comparison_report"]
-
-
-def _log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
 
 
 _LIMITS = (

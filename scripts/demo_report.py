@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -26,6 +25,7 @@ from telesmooth.arms.planar import AIR_BEARING_ARM, planar_forward_kinematics
 from telesmooth.atomic_files import write_text
 from telesmooth.datasets.lasa import lasa_operator_session
 from telesmooth.scripts.figures import FigureWriter
+from telesmooth.scripts.formatting import log as _log
 from telesmooth.smoothing.methods import METHODS, SmoothingSettings, smooth_recording
 from telesmooth.smoothing.metrics import smoothing_metrics
 from telesmooth.smoothing.model import DEFAULT_DT_S
@@ -138,10 +138,6 @@ def write_demo_report(out_dir, *, shape: str = "Angle", demo_index: int = 0) -> 
     report = out / "report.md"
     write_text(report, _report_text(summary, figures))
     return report
-
-
-def _log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
 
 
 def _write_figures(out, t, z, results, names, forward_kinematics) -> list[tuple[str, str]]:

@@ -23,7 +23,6 @@ import hashlib
 import json
 import math
 import os
-import sys
 import time
 from pathlib import Path
 
@@ -34,6 +33,7 @@ from telesmooth.atomic_files import write_text
 from telesmooth.diagrams.scenario import describe_chain
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.scripts.formatting import limit_ratio
+from telesmooth.scripts.formatting import log as _log
 from telesmooth.studies.claims import (
     APPROXIMATE_LIMIT,
     C1_QUANTILE,
@@ -55,10 +55,6 @@ __all__ = ["claim_figures_markdown", "code_fingerprint", "grid_fingerprint",
            "guard_table_markdown",
            "main_table_markdown",
            "merge_experiment_reports", "read_records", "write_experiment_report"]
-
-
-def _log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
 
 
 _COLUMNS = (

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 import time
 from pathlib import Path
 
@@ -29,6 +28,7 @@ import numpy as np
 from telesmooth.atomic_files import write_text
 from telesmooth.diagrams.simulation import tool_positions
 from telesmooth.scripts.figures import FigureWriter
+from telesmooth.scripts.formatting import log as _log
 from telesmooth.smoothing.foresight import foresight_sweep
 from telesmooth.smoothing.methods import METHOD_ALIASES, METHODS, method_name, smooth_recording
 from telesmooth.smoothing.metrics import cartesian_deformation, finite_differences
@@ -39,10 +39,6 @@ __all__ = ["foresight_study", "write_foresight_report"]
 
 SHARES = (0.5, 0.8)
 """The report names the first start whose bound reaches these shares of the method's E_def."""
-
-
-def _log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
 
 
 def foresight_study(scenario, method: str = "online-hard", *, step: int = 4,

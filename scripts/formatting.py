@@ -1,12 +1,19 @@
-"""Numbers in reports: a ratio to a limit never hides a violation in its rounding."""
+"""Numbers in reports (a ratio to a limit never hides a violation in its rounding) and the
+command line's progress lines."""
 
 from __future__ import annotations
 
 import math
+import sys
 
 from telesmooth.smoothing.metrics import VIOLATION_RTOL
 
-__all__ = ["limit_ratio"]
+__all__ = ["limit_ratio", "log"]
+
+
+def log(message: str) -> None:
+    """A progress or status line on stderr, flushed at once (stdout is for results)."""
+    print(message, file=sys.stderr, flush=True)
 
 
 def limit_ratio(value, digits: int = 2) -> str:

@@ -13,19 +13,16 @@ import dataclasses
 import json
 import math
 import signal
-import sys
 import time
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
+from telesmooth.scripts.formatting import log as _log
+
 __all__ = ["RobotTelemetry", "ground_start_time", "onboard_report", "robot_telemetry",
            "run_ground", "run_onboard"]
-
-
-def _log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
 
 
 def _check_url(url: str) -> str:

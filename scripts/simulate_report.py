@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import csv
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -42,14 +41,11 @@ from telesmooth.diagrams.simulation import (
 )
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.scripts.formatting import limit_ratio
+from telesmooth.scripts.formatting import log as _log
 from telesmooth.smoothing.metrics import finite_differences
 
 __all__ = ["limits_text", "write_received_csv", "write_record_report",
            "write_simulation_report"]
-
-
-def _log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
 
 
 def _write_csv(path: Path, header, rows) -> None:

@@ -16,20 +16,17 @@ from __future__ import annotations
 import dataclasses
 import math
 import signal
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from telesmooth.scripts.formatting import log as _log
+
 __all__ = ["console_scenario", "run_teleop", "write_session"]
 
 PROGRESS_PERIOD_S = 1.0
 SLICE_S = 0.1
-
-
-def _log(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
 
 
 def console_scenario(scenario):
