@@ -68,7 +68,8 @@ def minimum_jerk(t, t0, duration, start, end):
         Positions, shape T + P (just T for scalar ``start``/``end``), in the units of
         ``start``; exactly ``start`` for t <= t0 and exactly ``end`` for t >= t0 + duration.
         In between, the expression is evaluated exactly as written above, which the bitwise
-        reproduction of the old generators relies on.
+        equality with the frozen reference generators (``tests/test_synthetic.py``) relies
+        on.
     """
     s = np.clip((np.asarray(t) - t0) / duration, 0.0, 1.0)
     start = np.asarray(start)
@@ -79,7 +80,7 @@ def minimum_jerk(t, t0, duration, start, end):
         s = s.reshape(s.shape + (1,) * point_ndim)
     position = start + (end - start) * (10 * s**3 - 15 * s**4 + 6 * s**5)
     # At s = 1 the expression can be an ulp off ``end``; return ``end`` exactly there. (For
-    # start = 0 it is already exact, so the old generators' sums are unchanged.)
+    # start = 0 it is already exact, so the reference generators' sums are unchanged.)
     return np.where(s >= 1.0, end, position)
 
 

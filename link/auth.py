@@ -46,7 +46,6 @@ __all__ = [
     "MIN_KEY_BYTES",
     "TAG_BYTES",
     "UplinkKeyError",
-    "UplinkKeyPermissionWarning",
     "canonical_bytes",
     "check_key",
     "compute_tag",
@@ -85,11 +84,6 @@ AUTH_CLASSES = (AUTH_UNSIGNED, AUTH_MALFORMED, AUTH_FORGED)
 
 class UplinkKeyError(ValueError):
     """The uplink key is missing, unreadable, not hex or too short (message names the source)."""
-
-
-class UplinkKeyPermissionWarning(UserWarning):
-    """Kept for compatibility: a key file others can access is now refused
-    (:class:`UplinkKeyError`), as ssh refuses such a private key."""
 
 
 _KEY_LIKE = re.compile(rf"[0-9a-fA-F]{{{2 * MIN_KEY_BYTES},}}")

@@ -48,7 +48,7 @@ Silence is i − i_pkt ≥ T with no packet pending.
 Defaults and why: ``timeout_s`` = 0.625 s = 2.5 periods. A packet is due every 0.25 s; the
 ramp-down must not start for a packet that is merely late — a loaded ground or onboard
 process delays packets (with one CPU-bound process beside the two processes on 2 cores,
-packets arrived up to 0.38 s apart, 0.13 s late, which broke the former 0.3 s) — nor for
+packets arrived up to 0.38 s apart, 0.13 s late: a 0.3 s timeout fires on them) — nor for
 one packet the link lost (the next one is 0.5 s after the last). 2.5 periods tolerate one
 lost packet plus half a period of lateness, or one packet 1.5 periods late, while a link
 that is really down still starts the ramp-down 0.375 s after the first packet that did not

@@ -98,15 +98,14 @@ class BandedIpOptions:
         dual_tolerance: ‖∇ Lagrangian‖∞ relative to the size of its terms (round-off leaves
             ~1e-9 at 4 Hz, docs/method.md §2.3 notes, in the absolute gradient; this relative
             measure reaches 1e-10).
-        max_iterations: Newton steps before giving up (200). Before the Newton steps were
-            refined (``BandedQp._refine``) some took hundreds or never converged: 16 of the
-            offline-hard problems of the 210 LASA demonstrations at 4× the hand's speed
-            needed more than 200 steps (BendedLine/1's wrist 258) and BendedLine/2's
-            shoulder did not converge in 1000. Refined, all 630 joints converge: median 13
-            steps, 99th percentile 17–20, but the slowest joint depends on the BLAS's
-            last bits: 90 (Zshape/6), 65 (BendedLine/2) and 122 (LShape/0) steps with
-            OpenBLAS's SkylakeX, Sandybridge and Haswell kernels, a different problem each
-            time.
+        max_iterations: Newton steps before giving up (200). With the Newton steps refined
+            (``BandedQp._refine``) all 630 joints of the offline-hard problems of the 210
+            LASA demonstrations at 4× the hand's speed converge: median 13 steps, 99th
+            percentile 17–20, but the slowest joint depends on the BLAS's last bits: 90
+            (Zshape/6), 65 (BendedLine/2) and 122 (LShape/0) steps with OpenBLAS's
+            SkylakeX, Sandybridge and Haswell kernels, a different problem each time.
+            Unrefined, 16 of them need more than 200 steps (BendedLine/1's wrist 258) and
+            BendedLine/2's shoulder does not converge in 1000.
         linear_solver: "auto", "cholesky" or "qr" (module docstring).
     """
 
@@ -163,8 +162,8 @@ def _gram_band(rows: sparse.csr_matrix, half_bandwidth: int) -> np.ndarray:
 
     MᵀM is never formed: each row with entries v_a (column c_a) adds v_a·v_b at
     (max(c_a, c_b), min(c_a, c_b)) for every pair a ≤ b of its entries, summed chunk by chunk
-    of rows (the product's CSR form was ~1.4× M, and its temporaries more; memory, issue
-    20). ``half_bandwidth`` must be at least the widest row's span (c_max − c_min).
+    of rows (the product's CSR form would be ~1.4× M, and its temporaries more).
+    ``half_bandwidth`` must be at least the widest row's span (c_max − c_min).
     """
     rows = sparse.csr_matrix(rows)
     if not rows.has_canonical_format:      # a repeated column would pair with itself
@@ -229,9 +228,8 @@ class BandedQp:
         self.options = options
         self.n = self.a.shape[1]
         self.m = self.f.shape[0]
-        # Aᵀ as a view (CSC, sharing A's arrays): a row-compressed copy made its products
-        # gather instead of scatter, but cost as much memory as A (memory, issue 20). F is
-        # small.
+        # Aᵀ as a view (CSC, sharing A's arrays): a row-compressed copy would make its
+        # products gather instead of scatter, but costs as much memory as A. F is small.
         self.a_t = self.a.T
         self.f_t = self.f.T.tocsr()
         self.half_bandwidth = _half_bandwidth(self.a, self.f)
@@ -258,7 +256,7 @@ class BandedQp:
             keep[:n - offset, offset][self.fixed[offset:]] = False     # M[v, v − offset]
         # AᵀA is needed only as a band (the sparse product is dropped once it is stored: its
         # CSR form is ~1.4× A), and that band is kept in compressed form: a time-invariant
-        # model gives every sample the same rows (memory, issue 20).
+        # model gives every sample the same rows.
         normal_band = _gram_band(self.a, u)
         normal_band *= keep
         normal_band[self.fixed, 0] = 1.0
@@ -740,7 +738,7 @@ class BandedQp:
 
     def _abs_a_products(self, y_abs, c_abs) -> np.ndarray:
         """|A|ᵀ(|A| y_abs + c_abs), chunk by chunk of A's rows: |A| is never stored (it would
-        be as large as A's values; memory, issue 20)."""
+        be as large as A's values)."""
         indptr, indices, data = self.a.indptr, self.a.indices, self.a.data
         out = np.zeros(self.n)
         for start in range(0, self.a.shape[0], _CHUNK_ROWS):

@@ -149,7 +149,8 @@ def summarize(records: list[dict]) -> dict:
 
 PAIRED_AGAINST_RUCKIG = ("online-hard", "offline-cks-trajectory")
 """The methods within the limits whose E_def is set against Ruckig's demonstration by
-demonstration (issue 6: online-hard at most a quarter of Ruckig's stream tracking)."""
+demonstration: whether online-hard's E_def stays within a quarter of Ruckig's, Ruckig tracking
+the same stream (:data:`PAIRED_SHARE`)."""
 
 PAIRED_SHARE = 0.25
 """The share of Ruckig's E_def the paired comparison counts the demonstrations above."""

@@ -5,7 +5,7 @@ queues the samples for ``delay_s`` (L = delay_s / period_s samples, 3 by default
 are sent, so that the pre-simulator, which shows the newest command, runs 0.75 s ahead of the
 robot. When the pre-simulator reports a collision the queue is refilled with the command
 already sent (docs/method.md §5.2, policy "hold"): everything queued that leads into the collision
-is discarded and the robot holds. The optional policy "stop" (issue 6 part 2) instead plays out a
+is discarded and the robot holds. The optional policy "stop" instead plays out a
 jerk-limited stop planned from the sent motion (:mod:`telesmooth.systems.collision_stop`) and
 then holds at its rest pose. The FIFO is also the fixed-lag smoother's window
 (docs/method.md §5.1): the smoother consumes the same samples at the same ticks, so smoothing

@@ -1,7 +1,7 @@
 """Bad input: a scenario key that the scenario's own settings leave unread is an error.
 
-``haptic: {file: my.csv}`` without ``source: file`` used to run the built-in LASA
-demonstration and exit 0. ``diagrams.scenario.check_ignored_keys`` refuses every key of its
+Guards against ``haptic: {file: my.csv}`` without ``source: file`` running the built-in LASA
+demonstration and exiting 0. ``diagrams.scenario.check_ignored_keys`` refuses every key of its
 table (``_KEYS_READ_ONLY_WHEN``) that the deciding setting leaves unread, naming the key path,
 its value, and the setting with its value; keys are taken as the user wrote them (the merged
 YAML), the setting from the built scenario (default filled in).

@@ -66,7 +66,7 @@ def test_matches_the_dense_certified_optimum(route, constraint, vel, rest_at_end
 
 @pytest.mark.parametrize("constraint", ["state", "trajectory", "both"])
 def test_agrees_with_the_mathematical_program(constraint):
-    """Issue 6: within 1e-6 of the Drake/Clarabel solution (scaled states, rad)."""
+    """Within 1e-6 of the Drake/Clarabel solution (scaled states, rad)."""
     z, model = _setup(0.25, num_samples=120, num_joints=3, seed=5)
     kwargs = dict(max_acceleration=ACC, max_jerk=JERK, constraint=constraint, rest_at_end=True)
     drake = solve_offline_cks(z, model, **kwargs)
@@ -298,7 +298,8 @@ def test_both_solvers_report_the_same_objective(rest_at_end):
 
 @pytest.mark.parametrize("constraint", ["state", "trajectory"])
 def test_agrees_with_the_mathematical_program_to_a_microradian(constraint):
-    """The issue's agreement target with the default tolerances, on the benchmark's data."""
+    """Within a microradian of the Drake/Clarabel positions with the default tolerances, on the
+    benchmark's data."""
     from telesmooth.scripts.bench_core import MAX_ACCELERATION, MAX_JERK, synthetic_operator
     from telesmooth.smoothing.model import DEFAULT_DT_S, DEFAULT_R, DEFAULT_SIGMA
 
@@ -315,8 +316,8 @@ def test_agrees_with_the_mathematical_program_to_a_microradian(constraint):
 def test_a_regularised_step_that_fails_twice_in_one_iteration_falls_back_to_qr():
     # Very tight tolerances drive the normal equations to the edge of definiteness: the
     # regularised Cholesky + CG then misses the predictor's and the corrector's right-hand
-    # sides of the same iteration; both must go to the square-root route (it used to give
-    # "numerical_failure" on the corrector).
+    # sides of the same iteration; both must go to the square-root route (a corrector left
+    # on the failed Cholesky ends in "numerical_failure").
     from telesmooth.scripts.bench_core import MAX_ACCELERATION, MAX_JERK, synthetic_operator
     from telesmooth.smoothing.model import DEFAULT_DT_S, DEFAULT_R, DEFAULT_SIGMA
 

@@ -10,7 +10,7 @@ single system:
 * no packet, and no pose the robot's links ever take (100 Hz), comes within the safety margin;
 * over LCM the hold packets carry ``MODE_HOLD`` and only those.
 
-With ``fifo: {on_collision: stop}`` (issue 6 part 2) the same scene checks the jerk-limited
+With ``fifo: {on_collision: stop}`` the same scene checks the jerk-limited
 stop: FD limits kept from the sent history on, within the reported braking distance, no
 rejected pose commanded, continuation from the rest pose, MODE_HOLD over LCM, and the fall-back
 to the exact hold where the stop would enter the probe.
@@ -123,7 +123,7 @@ def test_hold_packets_go_up_the_link_marked_hold(scenario, record):
             np.testing.assert_array_equal(message.joint_position_smoothed, record.q_sent[seq])
 
 
-# -- issue 6 part 2: the jerk-limited collision stop (fifo.on_collision = "stop") ---------------
+# -- the jerk-limited collision stop (fifo.on_collision = "stop") ------------------------------
 #
 # The default limits (a_max = 0.05 rad/s², j_max = 0.1 rad/s³) need about 0.16 rad of joint 0 to
 # brake from this scene's motion; that stop would enter the probe's safety margin, so the

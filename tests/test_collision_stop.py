@@ -1,4 +1,4 @@
-"""Jerk-limited collision stop (issue 6 part 2): the planner core and the FIFO's "stop" policy.
+"""Jerk-limited collision stop: the planner core and the FIFO's "stop" policy.
 
 Core tests (no simulator): seeded random sent histories inside the stoppable set are braked to
 rest with every FD acceleration and jerk — recomputed with numpy from the sent sequence,
@@ -311,7 +311,7 @@ def test_fifo_stop_sends_the_plan_within_the_limits_then_holds_and_continues_fro
                                                                        (len(z) - k, 1)))
     np.testing.assert_array_equal(out["braking_distance"][:k], 0.0)
     assert out["stop_status"][k - 1, 0] == 0 and out["stop_status"][k, 0] == 1
-    # Guarantee 4: the queue continues from the rest pose, not from the old q_sent.
+    # Guarantee 4: the queue continues from the rest pose, not from the q_sent of before the stop.
     rest = plan.rest_position
     np.testing.assert_array_equal(q[release:release + LAG], np.tile(rest, (LAG, 1)))
     np.testing.assert_array_equal(out["q_delayed"][release:release + LAG],

@@ -397,7 +397,7 @@ def test_ramp_set_point_is_ramp_desired_state_to_the_last_bit(lead_s):
 def test_no_python_runs_when_the_set_point_is_read():
     """The set-point is the output of the C++ evaluator: reading it at many times calls no
     Python function (profiled); the Python gate runs only at its polls (one periodic event,
-    10 ms from 0.1 ms). The old design computed it in a Python output callback."""
+    10 ms from 0.1 ms). A Python output callback computing it would run at every read."""
     import sys
 
     dut = CommandInterpolator(CommandInterpolatorConfig(), joint_names=NAMES, lower_rad=LOWER,

@@ -281,8 +281,8 @@ def _link_guard_limits(**limits):
                          ids=["command_interpolator", "joint_command_receiver", "link_guard"])
 @pytest.mark.parametrize("side", ["lower_rad", "upper_rad"])
 def test_joint_limits_must_be_finite_and_one_per_joint(stage, side):
-    """An infinite limit is refused (the receiver used to take one, and with it any command
-    on that joint), and so is a limit vector of the wrong length."""
+    """An infinite limit is refused (a receiver that took one would accept any command on
+    that joint), and so is a limit vector of the wrong length."""
     limits = np.array(_limits()[side])
     limits[2] = -np.inf if side == "lower_rad" else np.inf
     with pytest.raises(ValueError) as error:

@@ -122,7 +122,7 @@ def test_a_restarted_onboard_accepts_no_packet_of_its_previous_run():
     np.testing.assert_array_equal(after.q, [0.4, 0.4])
     # A restarted ground (the next counter) is accepted at once, with any seq.
     assert after.send(_command(57, session_id(2, 6), second, (0.5, 0.5)))["accepted"] == 3
-    # ... and the old ground's packets are then stale.
+    # ... and the first ground's packets are then stale.
     counts = after.send(_command(2, session_id(1, 5), second))
     assert counts["stale"] == 1 and counts["accepted"] == 3
     assert REJECTION_CLASSES[-1] == "session"

@@ -4,7 +4,8 @@ read at the instant the robot's set-point reaches each command.
 Oracles: the plant's own state at each sample time (logged independently at every plant step);
 the tracker's seeded noise, which is a function of the sample index only, for a robot that
 stays exactly at rest; the steady state of a constant-velocity ramp, where a reading skewed by
-one tracker period (the old logging) is off by the tool speed × 10 ms.
+one tracker period (a sample stamped at the end of its period) is off by the tool speed ×
+10 ms.
 """
 
 import numpy as np
@@ -153,10 +154,11 @@ def test_e_of_a_constant_velocity_ramp_is_a_small_fraction_of_one_millisecond_of
     the ramp with a steady lag well under one millisecond of tool travel, R·ω·1 ms = 55 µm.
     The lag is the set-point's stall at the end of each ramp until the plant sees the next
     command: 0.1 ms (the interpolator's poll offset) with the continuous plant (measured
-    0.5 µm), one step more with a discrete one (1 ms: measured 7.3 µm; with the old 1 ms poll
-    at the same instants as the uplink, 11.3 µm). Read 1 ms early (the plant's "sampled"
+    0.5 µm), one step more with a discrete one (1 ms: measured 7.3 µm; with a 1 ms poll at
+    the same instants as the uplink, 11.3 µm). Read 1 ms early (the plant's "sampled"
     outputs, a servo without the one-step lead) e would exceed R·ω·1 ms; read one tracker
-    period late, as the logger's stamp used to give, it is R·ω·10 ms more (0.55 mm)."""
+    period late (a logger stamping the sample at the end of its period) it is R·ω·10 ms more
+    (0.55 mm)."""
     scenario = load_scenario(scenario_text=(
         f"{{onboard: {{time_step_s: {time_step_s}, "
         "drive: {damping_n_m_s_per_rad: [60, 20, 3]}}, settle_s: 0.5}"))
@@ -251,7 +253,8 @@ def test_behind_a_delaying_link_e_is_read_when_the_robot_began_to_move(tmp_path)
     assert e_direct["mean"] > 1e-5                        # the robot does move
     assert e_delayed["mean"] == pytest.approx(e_direct["mean"], rel=0.05)
     assert e_delayed["max"] == pytest.approx(e_direct["max"], rel=0.05)
-    # The old instant: the same record read at each send time + the ramp.
+    # Read at each send time + the ramp instead (no logged ramp starts): the link's delay
+    # then shows in e.
     import dataclasses as _dc
 
     from telesmooth.diagrams.simulation import response_errors

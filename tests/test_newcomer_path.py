@@ -1,4 +1,4 @@
-"""The newcomer path (issue 16 §2): the README's first steps work, and a failed command
+"""The newcomer path: the README's first steps work, and a failed command
 leaves nothing behind."""
 
 import os

@@ -174,16 +174,17 @@ def test_lasa_demonstrations_that_stalled_converge_to_the_mathematical_programs_
     samples): offline-hard failed on 16 of the 210 demonstrations with a cap of 200 Newton
     steps, and BendedLine/2's shoulder still with 1000: its steps stopped solving their own
     equations once λ/s of the active rows passed ~1e8, so the dual residual grew as the gap
-    collapsed. With the steps refined every joint converges in a few dozen steps (BendedLine/1
-    needed 258 on its wrist before), at Clarabel's optimum."""
+    collapsed. With the steps refined every joint converges in a few dozen steps (BendedLine/1's
+    wrist takes 258 unrefined), at Clarabel's optimum."""
     setup = _lasa_at_four_times(shape, demo)
     z, a_max, j_max = setup.q_original, setup.max_acceleration, setup.max_jerk
     result = solve_offline_hard(z, setup.period_s, max_acceleration=a_max, max_jerk=j_max,
                                 start_position=z[0], rest_at_end=True)
     assert result.status == ("converged",) * 3
-    # Before: 258 steps, and no convergence in 1000. Now 12–20 on these three with some BLAS
-    # kernels, 65 on BendedLine/2's shoulder with others (OpenBLAS's Sandybridge kernels):
-    # the count depends on the last bits, so the bound has room, well below the old stall.
+    # Unrefined: 258 steps, and no convergence in 1000. Refined: 12–20 on these three with
+    # some BLAS kernels, 65 on BendedLine/2's shoulder with others (OpenBLAS's Sandybridge
+    # kernels): the count depends on the last bits, so the bound has room, well below the
+    # unrefined stall.
     assert np.all(result.iterations <= 150), result.iterations
     for j in range(3):
         expected = _clarabel_offline_hard(z[:, j], z[0, j], setup.period_s, a_max[j], j_max[j])
