@@ -10,22 +10,36 @@ jerk-limited stop planned from the sent motion (:mod:`telesmooth.systems.collisi
 then holds at its rest pose. The FIFO is also the fixed-lag smoother's window
 (docs/method.md §5.1): the smoother consumes the same samples at the same ticks, so smoothing
 adds no delay.
+
+A thin Drake system around the pure step :func:`telesmooth.safety.fifo.fifo_step` (the hold,
+the clutch release and the stop's playout) and
+:func:`~telesmooth.safety.fifo.fifo_plan_contingency` (the stop planned between ticks): the
+system holds the ports, and the step's
+:class:`~telesmooth.safety.fifo.FifoState` lives in the Context as one discrete vector
+(:class:`~telesmooth.safety.state_codec.VectorCodec`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
-from typing import NamedTuple
 
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from telesmooth.arms.joint_vectors import check_finite_per_joint
-from telesmooth.safety.limiter import HISTORY_LENGTH
+from telesmooth.safety.fifo import (
+    FifoInputs,
+    FifoOutputs,
+    FifoParams,
+    FifoState,
+    fifo_initial_state,
+    fifo_plan_contingency,
+    fifo_step,
+)
 from telesmooth.safety.state_codec import VectorCodec
-from telesmooth.safety.stop import StopOutcome, StopParams, plan_stop
+from telesmooth.safety.stop import StopParams
 from telesmooth.systems.timing import check_period, delay_in_samples
 
 _logger = logging.getLogger(__name__)
@@ -100,29 +114,6 @@ class DelayFifoConfig:
         return delay_in_samples(self.max_stop_duration_s, self.period_s)
 
 
-class _Contingency(NamedTuple):
-    """The stop the FIFO would play if a collision came at the next tick, planned between
-    ticks from the sent history it will have then."""
-
-    history: np.ndarray           # (3, J) [p_{k−3}, p_{k−2}, p_{k−1}] it was planned from
-    outcome: StopOutcome
-    length: int                   # N, the planned commands (1 for a hold fallback)
-    commands: np.ndarray          # (max_stop_ticks, J), the first N rows used
-    braking_distance: np.ndarray  # (J,)
-
-
-class _Tick(NamedTuple):
-    """One tick of the FIFO, as computed from the state and the current inputs."""
-
-    window: np.ndarray            # (L+1, J), oldest first
-    hold: bool                    # a collision hold (or stop) is in force at this tick
-    clutch_released: bool         # the clutch was seen released during the hold
-    sent_history: np.ndarray | None = None   # stop only: [p_{k−2}, p_{k−1}] to remember
-    stop_plan: np.ndarray | None = None      # stop only: (max_ticks, J) planned commands
-    stop_info: np.ndarray | None = None      # stop only: [outcome, length, next index]
-    braking_distance: np.ndarray | None = None  # stop only: (J,)
-
-
 class DelayFifo(LeafSystem):
     r"""FIFO of L = delay_s/period_s joint-target samples, refilled with the sent command on
     collision (or, with ``on_collision = "stop"``, with a jerk-limited stop and then the sent
@@ -172,13 +163,13 @@ class DelayFifo(LeafSystem):
       the last collision's outcome (0 ``"none"`` before the first, 1 ``"stop"``, 3…6 the
       hold fallbacks: not stoppable, pose rejected, reverses, too long), (1,).
 
-    State (discrete, updated at t_k = k·period_s, offset 0): the L queued samples
-    b = [z_{k−L}, …, z_{k−1}] (oldest first), the hold flag h, whether the clutch was seen
-    released during the hold, and the last ``q_delayed`` (the fallback for ``q_sent``).
-    With ``on_collision = "stop"`` also: the two sent commands before the last
-    [p_{k−3}, p_{k−2}] (p_{k−1} is the ``q_sent`` input at tick k), the planned stop
-    (max_stop_ticks × J), [outcome, plan length N, next plan index i] and the braking
-    distance.
+    State (one discrete vector, a :class:`~telesmooth.safety.fifo.FifoState`, updated at
+    t_k = k·period_s, offset 0): the L queued samples b = [z_{k−L}, …, z_{k−1}] (oldest
+    first), the hold flag h, whether the clutch was seen released during the hold, and the
+    last ``q_delayed`` (the fallback for ``q_sent``). With ``on_collision = "stop"`` also: the
+    two sent commands before the last [p_{k−3}, p_{k−2}] (p_{k−1} is the ``q_sent`` input at
+    tick k), the planned stop (max_stop_ticks × J), its outcome, length N and next index i,
+    the braking distance, and the contingency (below).
 
     Outputs are the values *of a tick taken at the current time*: they are computed from the
     state (which holds the queue up to the previous tick) and the current inputs, like Drake's
@@ -268,24 +259,14 @@ class DelayFifo(LeafSystem):
         self._enable_input = self.DeclareVectorInputPort("enable", 1)
         self._stop_input = self.DeclareVectorInputPort("stop_requested", 1)
 
-        self._queue_state = self.DeclareDiscreteState(np.tile(q0, lag))
-        # [holding, clutch seen released during the hold]
-        self._hold_state = self.DeclareDiscreteState(np.zeros(2))
-        self._last_delayed_state = self.DeclareDiscreteState(q0.copy())
+        self._params = FifoParams(num_joints=n, lag=lag, release=config.release,
+                                  stop=self._planner,
+                                  max_stop_ticks=(config.max_stop_ticks
+                                                  if self._planner is not None else 0))
+        initial = fifo_initial_state(self._params, q0)
+        self._codec = VectorCodec(initial)
+        self._state_index = self.DeclareDiscreteState(self._codec.pack(initial))
         if self._planner is not None:
-            self._max_stop_ticks = config.max_stop_ticks
-            # [p_{k−3}, p_{k−2}] of the sent commands; the robot starts at rest at q0.
-            self._sent_history_state = self.DeclareDiscreteState(
-                np.tile(q0, HISTORY_LENGTH - 1))
-            self._stop_plan_state = self.DeclareDiscreteState(
-                np.zeros(self._max_stop_ticks * n))
-            # [outcome index, plan length N, next plan index i]
-            self._stop_info_state = self.DeclareDiscreteState(np.zeros(3))
-            self._braking_distance_state = self.DeclareDiscreteState(np.zeros(n))
-            initial = self._plan_contingency(np.tile(q0, (HISTORY_LENGTH, 1)))
-            self._contingency_codec = VectorCodec(initial)
-            self._contingency_state = self.DeclareDiscreteState(
-                self._contingency_codec.pack(initial))
             self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.5 * config.period_s,
                                                     self._update_contingency)
         self._tick_cache = self.DeclareCacheEntry(
@@ -296,24 +277,25 @@ class DelayFifo(LeafSystem):
         self.DeclareForcedDiscreteUpdateEvent(self._update_queue)
 
         self._q_newest_output = self.DeclareVectorOutputPort(
-            "q_newest", n, lambda c, out: out.SetFromVector(self._tick(c).window[lag]))
+            "q_newest", n, lambda c, out: out.SetFromVector(self._tick(c)[1].window[lag]))
         self._q_delayed_output = self.DeclareVectorOutputPort(
-            "q_delayed", n, lambda c, out: out.SetFromVector(self._tick(c).window[0]))
+            "q_delayed", n, lambda c, out: out.SetFromVector(self._tick(c)[1].window[0]))
         self._window_output = self.DeclareVectorOutputPort(
             "window", (lag + 1) * n,
-            lambda c, out: out.SetFromVector(self._tick(c).window.ravel()))
+            lambda c, out: out.SetFromVector(self._tick(c)[1].window.ravel()))
         self._reset_output = self.DeclareVectorOutputPort(
-            "reset", 1, lambda c, out: out.SetAtIndex(0, float(self._tick(c).hold)))
+            "reset", 1, lambda c, out: out.SetAtIndex(0, float(self._tick(c)[1].hold)))
         self._holding_output = self.DeclareVectorOutputPort(
-            "holding", 1, lambda c, out: out.SetAtIndex(0, float(self._tick(c).hold)))
+            "holding", 1, lambda c, out: out.SetAtIndex(0, float(self._tick(c)[1].hold)))
         self._braking_distance_output = None
         self._stop_status_output = None
         if self._planner is not None:
             self._braking_distance_output = self.DeclareVectorOutputPort(
                 "braking_distance", n,
-                lambda c, out: out.SetFromVector(self._tick(c).braking_distance))
+                lambda c, out: out.SetFromVector(self._tick(c)[1].braking_distance))
             self._stop_status_output = self.DeclareVectorOutputPort(
-                "stop_status", 1, lambda c, out: out.SetAtIndex(0, self._tick(c).stop_info[0]))
+                "stop_status", 1,
+                lambda c, out: out.SetAtIndex(0, float(self._tick(c)[1].stop_outcome)))
 
     # -- accessors ------------------------------------------------------------------------
 
@@ -376,25 +358,33 @@ class DelayFifo(LeafSystem):
                                f"{self._config.on_collision!r})")
         return port
 
+    @property
+    def params(self) -> FifoParams:
+        """The immutable parameters of :func:`~telesmooth.safety.fifo.fifo_step`."""
+        return self._params
+
+    def fifo_state(self, context) -> FifoState:
+        """The FIFO's state in ``context`` (between ticks)."""
+        return self._codec.unpack(context.get_discrete_state(self._state_index).get_value())
+
     # -- the tick -------------------------------------------------------------------------
 
-    def _tick(self, context) -> _Tick:
+    def _tick(self, context) -> tuple[FifoState, FifoOutputs]:
         """The tick at this time, computed once per context change (shared by every output
         port and the update)."""
         return self._tick_cache.Eval(context)
 
-    def _compute_tick(self, context) -> _Tick:
-        """The tick at this time (see the class docstring)."""
-        n, lag = self._num_joints, self._lag
-        queue = context.get_discrete_state(self._queue_state).get_value().reshape(lag, n)
-        holding, clutch_released = context.get_discrete_state(self._hold_state).get_value()
-        holding = holding > 0.5
-        sample = self._q_target_input.Eval(context)
+    def _q_sent(self, context):
+        if self._q_sent_input.HasValue(context):
+            return np.asarray(self._q_sent_input.Eval(context), dtype=float)
+        return None
+
+    def _compute_tick(self, context) -> tuple[FifoState, FifoOutputs]:
+        """:func:`~telesmooth.safety.fifo.fifo_step` on the state and this time's inputs."""
         collision = (
             self._collision_input.HasValue(context)
             and self._collision_input.Eval(context)[0] > 0.5
         ) or (self._stop_input.HasValue(context) and self._stop_input.Eval(context)[0] > 0.5)
-        collision = collision or not np.all(np.isfinite(sample)) or sample.shape != (n,)
         enable = True
         if self._config.release == "clutch":
             if not self._enable_input.HasValue(context):
@@ -402,111 +392,24 @@ class DelayFifo(LeafSystem):
                     "DelayFifo: release = 'clutch' needs the 'enable' input port connected"
                 )
             enable = self._enable_input.Eval(context)[0] > 0.5
-            clutch_released = clutch_released > 0.5 or (holding and not enable)
-            released = clutch_released and enable
-        else:
-            released = True
-            clutch_released = False
-        if self._q_sent_input.HasValue(context):
-            q_sent = np.asarray(self._q_sent_input.Eval(context), dtype=float)
-        else:
-            q_sent = context.get_discrete_state(self._last_delayed_state).get_value()
-        if self._planner is not None:
-            return self._compute_stop_tick(context, queue, sample, q_sent, collision, holding,
-                                           released, clutch_released)
-        hold = collision or (holding and not released)
-        if hold:
-            window = np.tile(q_sent, (lag + 1, 1))
-        else:
-            window = np.vstack([queue, sample[None, :]])
-            clutch_released = False
-        return _Tick(window, hold, clutch_released)
-
-    def _compute_stop_tick(self, context, queue, sample, q_sent, collision, holding, released,
-                           clutch_released) -> _Tick:
-        """The tick with ``on_collision = "stop"``: plan at the collision tick that starts a
-        hold, play the plan out, then hold at the sent (rest) pose."""
-        n, lag = self._num_joints, self._lag
-        history = self._history(context, q_sent)  # p_{k−3}, p_{k−2}, p_{k−1}
-        plan = context.get_discrete_state(self._stop_plan_state).get_value().reshape(
-            self._max_stop_ticks, n)
-        info = context.get_discrete_state(self._stop_info_state).get_value().copy()
-        distance = context.get_discrete_state(self._braking_distance_state).get_value()
-        if collision and not holding:
-            contingency = self._contingency_codec.unpack(
-                context.get_discrete_state(self._contingency_state).get_value())
-            if np.array_equal(contingency.history, history):
-                plan, length = contingency.commands, contingency.length
-                outcome, distance = contingency.outcome, contingency.braking_distance
-            else:
-                _logger.warning("%s: collision at t = %.3f s with no stop planned for this "
-                                "history (a tick forced without the mid-period update): hold",
-                                self.get_name() or "DelayFifo", context.get_time())
-                plan, length = np.tile(q_sent, (self._max_stop_ticks, 1)), 1
-                outcome, distance = StopOutcome.HOLD, np.zeros(n)
-            info = np.array([float(outcome), float(length), 0.0])
-        length, next_index = int(info[1]), int(info[2])
-        stopping = next_index < length
-        hold = collision or (holding and (not released or stopping))
-        if hold and stopping:
-            command = plan[next_index]
-            info[2] = next_index + 1
-        else:
-            command = q_sent
-        if hold:
-            window = np.tile(command, (lag + 1, 1))
-        else:
-            window = np.vstack([queue, sample[None, :]])
-            clutch_released = False
-        return _Tick(window, hold, clutch_released, sent_history=history[1:], stop_plan=plan,
-                     stop_info=info, braking_distance=np.array(distance, dtype=float))
-
-    def _history(self, context, q_sent) -> np.ndarray:
-        """[p_{k−3}, p_{k−2}, p_{k−1}]: the two sent commands in the state, then ``q_sent``."""
-        earlier = context.get_discrete_state(self._sent_history_state).get_value().reshape(
-            HISTORY_LENGTH - 1, self._num_joints)
-        return np.vstack([earlier, np.asarray(q_sent, dtype=float)[None, :]])
-
-    def _plan_contingency(self, history) -> _Contingency:
-        """The stop from ``history`` (3, J), in the form kept in the state."""
-        plan = plan_stop(self._planner, history, max_ticks=self._max_stop_ticks)
-        commands = np.zeros((self._max_stop_ticks, self._num_joints))
-        commands[:plan.ticks_to_rest] = plan.commands
-        return _Contingency(history=np.array(history, dtype=float), outcome=plan.outcome,
-                            length=plan.ticks_to_rest, commands=commands,
-                            braking_distance=np.array(plan.braking_distance, dtype=float))
+        inputs = FifoInputs(sample=self._q_target_input.Eval(context), collision=collision,
+                            enable=enable, q_sent=self._q_sent(context))
+        state, outputs = fifo_step(self._params, self.fifo_state(context), inputs)
+        if outputs.unplanned:
+            _logger.warning("%s: collision at t = %.3f s with no stop planned for this "
+                            "history (a tick forced without the mid-period update): hold",
+                            self.get_name() or "DelayFifo", context.get_time())
+        return state, outputs
 
     def _update_contingency(self, context, discrete_state):
-        """Mid-period: plans the stop a collision at the next tick would play (class
-        docstring), unless holding or the history is the one already planned from."""
-        holding = context.get_discrete_state(self._hold_state).get_value()[0] > 0.5
-        if holding:
-            return
-        if self._q_sent_input.HasValue(context):
-            q_sent = np.asarray(self._q_sent_input.Eval(context), dtype=float)
-        else:
-            q_sent = context.get_discrete_state(self._last_delayed_state).get_value()
-        history = self._history(context, q_sent)
-        stored = context.get_discrete_state(self._contingency_state).get_value()
-        if np.array_equal(self._contingency_codec.unpack(stored).history, history):
-            return
-        discrete_state.get_mutable_vector(self._contingency_state).SetFromVector(
-            self._contingency_codec.pack(self._plan_contingency(history)))
+        """Mid-period: :func:`~telesmooth.safety.fifo.fifo_plan_contingency` (the stop a
+        collision at the next tick would play)."""
+        state = self.fifo_state(context)
+        planned = fifo_plan_contingency(self._params, state, self._q_sent(context))
+        if planned is not state:
+            discrete_state.get_mutable_vector(self._state_index).SetFromVector(
+                self._codec.pack(planned))
 
     def _update_queue(self, context, discrete_state):
-        tick = self._tick(context)
-        window, hold = tick.window, tick.hold
-        discrete_state.get_mutable_vector(self._queue_state).SetFromVector(
-            window[1:].ravel())
-        discrete_state.get_mutable_vector(self._hold_state).SetFromVector(
-            [float(hold), float(tick.clutch_released and hold)])
-        discrete_state.get_mutable_vector(self._last_delayed_state).SetFromVector(window[0])
-        if self._planner is not None:
-            discrete_state.get_mutable_vector(self._sent_history_state).SetFromVector(
-                tick.sent_history.ravel())
-            discrete_state.get_mutable_vector(self._stop_plan_state).SetFromVector(
-                tick.stop_plan.ravel())
-            discrete_state.get_mutable_vector(self._stop_info_state).SetFromVector(
-                tick.stop_info)
-            discrete_state.get_mutable_vector(self._braking_distance_state).SetFromVector(
-                tick.braking_distance)
+        discrete_state.get_mutable_vector(self._state_index).SetFromVector(
+            self._codec.pack(self._tick(context)[0]))
