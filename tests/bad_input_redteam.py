@@ -1,6 +1,7 @@
 """Red-team sweep of every ``telesmooth`` entry point with hostile and mistaken input.
 
-Not a pytest module (the focused ``tests/test_bad_input_*.py`` files hold the tests); a script
+Run by the suite (``tests/test_bad_input_sweep.py``) and on its own; the focused
+``tests/test_bad_input_*.py`` files hold the unit tests. A script
 that tries every case below and prints a table: one row per case with what happened. Run it
 from a checkout with its virtual environment::
 
