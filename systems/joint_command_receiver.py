@@ -1,26 +1,11 @@
 """Onboard side of the uplink: accepts ``lcmt_teleop_joint_command`` packets, or holds.
 
-Every packet is examined before it can move the robot, in this order (the first failing check
-classifies it, :func:`classify_joint_command`):
-
-1. **decodes** as an ``lcmt_teleop_joint_command`` (``"undecodable"``);
-2. with ``authentication = "required"``, carries a valid HMAC-SHA256 tag over the whole
-   message, sequence number and session included (``"auth"``: unsigned or forged; see
-   :mod:`telesmooth.link.auth`);
-3. it is **fresh** (:mod:`telesmooth.link.session`): it carries this onboard run's epoch
-   (``"session"`` otherwise: a packet from before an onboard restart), and its
-   (session_id, seq) follows the last accepted command: a newer seq of the same session, or
-   the next session counter (``"duplicate"``: the same packet again, a duplicate or a
-   replay; ``"stale"``: older, i.e. late, reordered or a replay of an earlier packet;
-   ``"session"``: a session counter that skips ahead);
-4. names the robot's joints in order, with finite positions inside the joint limits
-   (``"invalid"``).
-
-A packet that passes all four is **accepted**: it becomes the command. Anything else is
-counted by class, logged with its reason, and the robot keeps the last accepted command. An
-invalid, forged or undecodable packet also raises the ``command_rejected`` flag until the next
-accepted one; duplicates and stale packets are link artefacts and are only counted. When
-packets stop arriving the command holds and ``command_timeout`` is raised (the onboard
+A thin Drake system around the pure receiver :func:`telesmooth.link.receiver.receiver_step`
+(whose docstring gives the checks every packet passes before it can move the robot: it
+decodes, is authentic, is fresh, and names the robot's joints within their limits). Anything
+not accepted is counted by class (:class:`~telesmooth.link.receiver.PacketClass`) and logged
+with its reason, and the robot keeps the last accepted command. When packets stop arriving
+the command holds and ``command_timeout`` is raised (the onboard
 :class:`~telesmooth.systems.link_guard.LinkGuard` turns that silence into a jerk-limited
 ramp-down).
 """
@@ -35,9 +20,23 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
 from telesmooth.arms.joint_vectors import check_joint_vector
-from telesmooth.lcm_types import decode_exact, lcmt_teleop_joint_command
-from telesmooth.link.auth import check_key, verify
-from telesmooth.link.session import EPOCH_BITS, classify_session
+from telesmooth.lcm_types import lcmt_teleop_joint_command
+from telesmooth.link.auth import check_key
+from telesmooth.link.receiver import (
+    FLAGGED,
+    PACKET_CLASSES,
+    REJECTION_CLASSES,
+    PacketClass,
+    ReceiverInputs,
+    ReceiverParams,
+    ReceiverState,
+    check_joint_command,
+    classify_joint_command,
+    receiver_initial_state,
+    receiver_step,
+)
+from telesmooth.link.session import EPOCH_BITS
+from telesmooth.safety.state_codec import VectorCodec
 from telesmooth.systems.timing import check_period
 
 __all__ = [
@@ -46,19 +45,13 @@ __all__ = [
     "REJECTION_CLASSES",
     "JointCommandReceiver",
     "JointCommandReceiverConfig",
+    "PacketClass",
     "check_joint_command",
     "classify_joint_command",
 ]
 
 AUTHENTICATION_MODES = ("off", "required")
 """``JointCommandReceiverConfig.authentication``: ``"off"`` only for in-process simulation."""
-
-REJECTION_CLASSES = ("invalid", "auth", "duplicate", "stale", "undecodable", "session")
-"""The ways a packet is not accepted; ``rejection_counts`` is in this order."""
-
-PACKET_CLASSES = ("accepted",) + REJECTION_CLASSES + ("ignored",)
-"""Every outcome of :func:`classify_joint_command` (``"ignored"``: the sender's seq = −1
-placeholder before its first packet)."""
 
 _logger = logging.getLogger(__name__)
 
@@ -87,77 +80,6 @@ class JointCommandReceiverConfig:
             raise ValueError(
                 f"JointCommandReceiverConfig.authentication = {self.authentication!r} must be "
                 f"one of {AUTHENTICATION_MODES}")
-
-
-def check_joint_command(msg, *, joint_names, lower_rad, upper_rad) -> str | None:
-    """Why ``msg`` must not move the robot (a message naming field, joint and value), or None."""
-    n = len(joint_names)
-    if msg.num_joints != n or len(msg.joint_position_smoothed) != n:
-        return f"num_joints = {msg.num_joints} but the robot has {n} joints"
-    if tuple(msg.joint_name) != tuple(joint_names):
-        return (f"joint_name = {list(msg.joint_name)!r} differs from the robot's "
-                f"{list(joint_names)!r}")
-    for name, value, lo, hi in zip(joint_names, msg.joint_position_smoothed, lower_rad,
-                                   upper_rad):
-        if not np.isfinite(value):
-            return f"joint_position_smoothed[{name!r}] = {value!r} is not finite"
-        if not lo <= value <= hi:
-            return (f"joint_position_smoothed[{name!r}] = {value!r} rad is outside the limits "
-                    f"[{lo!r}, {hi!r}]")
-    return None
-
-
-def classify_joint_command(msg, *, last_accepted, joint_names, lower_rad, upper_rad,
-                           key: bytes | None = None, onboard_epoch: int = 0) -> tuple[str, str]:
-    """The class of one decoded packet (see the module docstring) and the reason, for people.
-
-    Args:
-        msg: A decoded ``lcmt_teleop_joint_command``.
-        last_accepted: (session_id, seq) of the last accepted command, or None before the first.
-        joint_names, lower_rad, upper_rad: The robot's joints and limits, rad.
-        key: The uplink key; None = authentication off.
-        onboard_epoch: This onboard run's epoch (0 in process).
-
-    Returns:
-        (class, reason): class in :data:`PACKET_CLASSES`; reason is "" when accepted.
-    """
-    if msg.seq < 0:
-        return "ignored", f"seq = {msg.seq}: the sender has not formed a packet yet"
-    if key is not None:
-        problem = verify(msg, key)
-        if problem is not None:
-            return "auth", problem
-    if int(msg.onboard_epoch) != int(onboard_epoch):
-        return "session", (f"onboard_epoch = {int(msg.onboard_epoch)} is not this onboard "
-                           f"run's {int(onboard_epoch)} (a packet from before a restart, or a "
-                           "ground that has not read this robot's telemetry yet)")
-    kind, reason = classify_session(msg.session_id, msg.seq, last_accepted)
-    if kind != "accepted":
-        return kind, reason
-    problem = check_joint_command(msg, joint_names=joint_names, lower_rad=lower_rad,
-                                  upper_rad=upper_rad)
-    if problem is not None:
-        return "invalid", problem
-    return "accepted", ""
-
-
-# Layout of the discrete status state.
-(_LAST_SEQ, _LAST_TIME, _REJECTED, _TIMEOUT, _EXAMINED_SEQ, _LAST_SESSION, _LAST_PACKET,
- _ACCEPTED, _COUNTS) = range(9)
-_EXAMINED_SESSION = _COUNTS + len(REJECTION_CLASSES)
-_STATUS_SIZE = _EXAMINED_SESSION + 1
-_FLAGGED = ("invalid", "auth", "undecodable", "session")
-
-
-def _is_default(msg) -> bool:
-    """Whether ``msg`` is a default-constructed message (a subscriber's "nothing yet").
-
-    Compared field by field: an in-process message whose counts disagree with its arrays
-    cannot be encoded, and must not raise here."""
-    return (msg.utime == 0 and msg.seq == 0 and msg.sample_utime == 0 and msg.num_joints == 0
-            and not msg.joint_name and not msg.joint_position_smoothed
-            and not msg.joint_velocity_smoothed and msg.mode == 0 and msg.session_id == 0
-            and msg.auth_tag_size == 0 and not msg.auth_tag)
 
 
 class JointCommandReceiver(LeafSystem):
@@ -258,35 +180,32 @@ class JointCommandReceiver(LeafSystem):
             "lcm_message", AbstractValue.Make(lcmt_teleop_joint_command()))
         self._undecodable_input = self.DeclareVectorInputPort("message_undecodable", 1)
         self._packets_input = self.DeclareAbstractInputPort("packets", AbstractValue.Make(()))
-        self._command_state = self.DeclareDiscreteState(q0)
-        status = np.zeros(_STATUS_SIZE)
-        status[[_LAST_SEQ, _EXAMINED_SEQ, _LAST_PACKET]] = -1.0
-        self._status_state = self.DeclareDiscreteState(status)
+        self._params = ReceiverParams(joint_names=self._joint_names, lower_rad=self._lower,
+                                      upper_rad=self._upper, key=self._key,
+                                      onboard_epoch=self._epoch, timeout_s=config.timeout_s)
+        initial = receiver_initial_state(q0)
+        self._codec = VectorCodec(initial)
+        self._state_index = self.DeclareDiscreteState(self._codec.pack(initial))
         self._rejection_state = self.DeclareAbstractState(AbstractValue.Make(""))
         self.DeclarePeriodicUnrestrictedUpdateEvent(config.poll_period_s, 0.0,
                                                     self._update_command)
         self.DeclareInitializationUnrestrictedUpdateEvent(self._update_command)
         self.DeclareForcedUnrestrictedUpdateEvent(self._update_command)
-        self._q_output = self.DeclareStateOutputPort("q_commanded", self._command_state)
 
-        def scalar(index):
-            return lambda c, o: o.SetAtIndex(0, self._status(c)[index])
+        def state_output(name, field):
+            where = self._codec.field_slice(field)
+            size = where.stop - where.start
+            return self.DeclareVectorOutputPort(
+                name, size, lambda c, o: o.SetFromVector(self._vector(c)[where]),
+                {self.xd_ticket()})
 
-        self._seq_output = self.DeclareVectorOutputPort(
-            "last_command_seq", 1, scalar(_LAST_SEQ), {self.xd_ticket()})
-        self._session_output = self.DeclareVectorOutputPort(
-            "last_command_session", 1, scalar(_LAST_SESSION), {self.xd_ticket()})
-        self._rejected_output = self.DeclareVectorOutputPort(
-            "command_rejected", 1, scalar(_REJECTED), {self.xd_ticket()})
-        self._timeout_output = self.DeclareVectorOutputPort(
-            "command_timeout", 1, scalar(_TIMEOUT), {self.xd_ticket()})
-        self._accepted_output = self.DeclareVectorOutputPort(
-            "accepted_count", 1, scalar(_ACCEPTED), {self.xd_ticket()})
-        self._counts_output = self.DeclareVectorOutputPort(
-            "rejection_counts", len(REJECTION_CLASSES),
-            lambda c, o: o.SetFromVector(
-                self._status(c)[_COUNTS:_COUNTS + len(REJECTION_CLASSES)]),
-            {self.xd_ticket()})
+        self._q_output = state_output("q_commanded", "command")
+        self._seq_output = state_output("last_command_seq", "last_seq")
+        self._session_output = state_output("last_command_session", "last_session")
+        self._rejected_output = state_output("command_rejected", "rejected")
+        self._timeout_output = state_output("command_timeout", "timeout")
+        self._accepted_output = state_output("accepted_count", "accepted")
+        self._counts_output = state_output("rejection_counts", "counts")
         self._last_rejection_output = self.DeclareStateOutputPort(
             "last_rejection", self._rejection_state)
 
@@ -332,77 +251,44 @@ class JointCommandReceiver(LeafSystem):
     def get_last_rejection_output_port(self):
         return self._last_rejection_output
 
+    @property
+    def params(self) -> ReceiverParams:
+        """The immutable parameters of :func:`~telesmooth.link.receiver.receiver_step`."""
+        return self._params
+
+    def receiver_state(self, context) -> ReceiverState:
+        """The receiver's state in ``context`` (between polls)."""
+        return self._codec.unpack(self._vector(context))
+
     def rejection_counts(self, context) -> dict:
         """{class: count} of the packets not accepted so far (plus "accepted")."""
-        status = self._status(context)
-        counts = {name: int(status[_COUNTS + i]) for i, name in enumerate(REJECTION_CLASSES)}
-        counts["accepted"] = int(status[_ACCEPTED])
+        state = self.receiver_state(context)
+        counts = dict(state.counts._asdict())
+        counts["accepted"] = state.accepted
         return counts
 
-    def _status(self, context):
-        return context.get_discrete_state(self._status_state).get_value()
-
-    def _examine(self, msg, status, now, command, reasons) -> None:
-        """Classifies one decoded packet and updates ``status``/``command`` in place."""
-        last = None if status[_LAST_SEQ] < 0 else (int(status[_LAST_SESSION]),
-                                                   int(status[_LAST_SEQ]))
-        kind, reason = classify_joint_command(
-            msg, last_accepted=last, joint_names=self._joint_names, lower_rad=self._lower,
-            upper_rad=self._upper, key=self._key, onboard_epoch=self._epoch)
-        if kind == "ignored":
-            return
-        if kind == "accepted":
-            command[:] = np.asarray(msg.joint_position_smoothed, dtype=float)
-            status[[_LAST_SEQ, _LAST_SESSION, _LAST_TIME, _REJECTED]] = [
-                msg.seq, msg.session_id, now, 0.0]
-            status[_ACCEPTED] += 1
-            return
-        self._reject(kind, reason, status, now, reasons)
-
-    def _reject(self, kind, reason, status, now, reasons) -> None:
-        status[_COUNTS + REJECTION_CLASSES.index(kind)] += 1
-        if kind in _FLAGGED:
-            status[_REJECTED] = 1.0
-        text = f"{kind}: {reason}"
-        reasons.append(text)
-        log = _logger.warning if kind in _FLAGGED else _logger.info
-        log("%s: packet rejected at t = %.3f s (%s)",
-            self.get_name() or "JointCommandReceiver", now, text)
+    def _vector(self, context):
+        return context.get_discrete_state(self._state_index).get_value()
 
     def _update_command(self, context, state):
-        status = self._status(context).copy()
-        command = context.get_discrete_state(self._command_state).get_value().copy()
         now = context.get_time()
-        reasons = []
+        packets = message = None
+        undecodable = False
         if self._packets_input.HasValue(context):
-            for index, data in self._packets_input.Eval(context):
-                if index <= status[_LAST_PACKET]:
-                    continue
-                status[_LAST_PACKET] = index
-                try:
-                    msg = decode_exact(lcmt_teleop_joint_command, data)
-                except Exception as error:  # noqa: BLE001 - any failure = not this type
-                    self._reject("undecodable", f"{len(data)} bytes: {type(error).__name__}: "
-                                 f"{error}", status, now, reasons)
-                    continue
-                self._examine(msg, status, now, command, reasons)
+            packets = self._packets_input.Eval(context)
         elif self._message_input.HasValue(context):
-            # Only the newest message is visible here: it is examined once if it is newer
-            # than the last accepted one; older or equal ones are ignored, uncounted.
-            msg = self._message_input.Eval(context)
-            pair = (int(msg.session_id), int(msg.seq))
-            newer = status[_LAST_SEQ] < 0 or pair > (int(status[_LAST_SESSION]),
-                                                     int(status[_LAST_SEQ]))
-            if newer and msg.seq >= 0 and pair != (
-                    int(status[_EXAMINED_SESSION]), int(status[_EXAMINED_SEQ])) and (
-                    not _is_default(msg)):
-                status[_EXAMINED_SESSION], status[_EXAMINED_SEQ] = pair
-                self._examine(msg, status, now, command, reasons)
-            undecodable = self._undecodable_input
-            if undecodable.HasValue(context) and undecodable.Eval(context)[0] > 0.5:
-                status[_REJECTED] = 1.0
-        status[_TIMEOUT] = 1.0 if now - status[_LAST_TIME] > self._config.timeout_s else 0.0
-        state.get_mutable_discrete_state(self._command_state).SetFromVector(command)
-        state.get_mutable_discrete_state(self._status_state).SetFromVector(status)
-        if reasons:
-            state.get_mutable_abstract_state(self._rejection_state).set_value(reasons[-1])
+            message = self._message_input.Eval(context)
+            undecodable = (self._undecodable_input.HasValue(context)
+                           and self._undecodable_input.Eval(context)[0] > 0.5)
+        after, rejections = receiver_step(
+            self._params, self.receiver_state(context),
+            ReceiverInputs(now=now, packets=packets, message=message, undecodable=undecodable))
+        for rejection in rejections:
+            log = _logger.warning if rejection.kind in FLAGGED else _logger.info
+            log("%s: packet rejected at t = %.3f s (%s)",
+                self.get_name() or "JointCommandReceiver", now, rejection)
+        state.get_mutable_discrete_state(self._state_index).SetFromVector(
+            self._codec.pack(after))
+        if rejections:
+            state.get_mutable_abstract_state(self._rejection_state).set_value(
+                str(rejections[-1]))

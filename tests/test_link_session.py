@@ -21,6 +21,7 @@ from telesmooth.systems.joint_command_receiver import (
     REJECTION_CLASSES,
     JointCommandReceiver,
     JointCommandReceiverConfig,
+    PacketClass,
     classify_joint_command,
 )
 from telesmooth.systems.joint_command_sender import JointCommandSender
@@ -133,13 +134,14 @@ def test_classify_names_the_epoch():
     kind, reason = classify_joint_command(msg, last_accepted=None, joint_names=JOINTS,
                                           lower_rad=LOWER, upper_rad=UPPER, key=KEY,
                                           onboard_epoch=42)
-    assert kind == "session" and "onboard_epoch = 41 is not this onboard run's 42" in reason
+    assert kind == PacketClass.SESSION
+    assert "onboard_epoch = 41 is not this onboard run's 42" in reason
     # The epoch is covered by the tag: changing it breaks the signature.
     msg.onboard_epoch = 42
     kind, _ = classify_joint_command(msg, last_accepted=None, joint_names=JOINTS,
                                      lower_rad=LOWER, upper_rad=UPPER, key=KEY,
                                      onboard_epoch=42)
-    assert kind == "auth"
+    assert kind == PacketClass.AUTH
     with pytest.raises(ValueError, match="onboard_epoch = -1"):
         _receiver(-1)
 
@@ -163,4 +165,4 @@ def test_the_sender_carries_the_epoch_and_session_and_withholds_without_telemetr
     kind, _ = classify_joint_command(msg, last_accepted=(session_id(1, 4), 80),
                                      joint_names=JOINTS, lower_rad=LOWER, upper_rad=UPPER,
                                      key=KEY, onboard_epoch=epoch)
-    assert kind == "accepted"
+    assert kind == PacketClass.ACCEPTED
