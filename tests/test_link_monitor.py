@@ -29,7 +29,7 @@ CONFIG = LinkMonitorConfig(poll_period_s=0.05, telemetry_timeout_s=1.0, max_unac
 def test_link_status_table(age, unacked, mode, rejected, expected):
     assert LINK_STATUSES[link_status(telemetry_age_s=age, unacknowledged=unacked,
                                      guard_mode=mode, rejected_recently=rejected,
-                                     config=CONFIG)] == expected
+                                     params=CONFIG.params())] == expected
 
 
 def _telemetry(session, last_seq, *, mode=0, invalid=0, accepted=0):
