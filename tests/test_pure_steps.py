@@ -1,0 +1,100 @@
+"""Every stateful Drake system of ``telesmooth.systems`` is ports and a codec around a pure step,
+or is listed as not yet one, with what its callbacks still decide.
+
+Read from the sources (no Drake needed): a class is *stateful* when its methods declare a
+state (``Declare…State(``). Each one is in exactly one of :data:`PURE_STEPS` (the system
+calls the named pure function, imported from a package without Drake systems, and its own
+callbacks stay short: the logic is in the step) or :data:`NOT_YET` (what remains to move, for
+a later change). A new stateful system fails here until it is put in one of them.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+SYSTEMS = Path(__file__).resolve().parents[1] / "systems"
+
+PURE_STEPS = {
+    "delay_fifo.DelayFifo": ("telesmooth.safety.fifo", "fifo_step"),
+    "joint_command_receiver.JointCommandReceiver": ("telesmooth.link.receiver",
+                                                    "receiver_step"),
+    "link_guard.LinkGuard": ("telesmooth.safety.guard", "guard_step"),
+    "link_monitor.LinkMonitor": ("telesmooth.link.monitor", "monitor_step"),
+    "operator_console.OperatorConsole": ("telesmooth.console.input", "console_step"),
+}
+"""System → (module, function) of its pure step."""
+
+NOT_YET = {
+    "collision_checker.CollisionChecker": "the collision latch over a period",
+    "command_interpolator.CommandGate": "the ramp between 4 Hz commands and its rejection",
+    "haptic_command_receiver.HapticCommandReceiver": "the haptic packets' checks and timeout",
+    "inverse_kinematics.InverseKinematicsSystem": "the IK's holds and the clutch's anchor",
+    "laser_tracker.LaserTracker": "the tracker's seeded noise and sample instants",
+    "lcm_safe_subscriber.LcmSafeSubscriber": "the packet window and its counts",
+    "link_channel.LinkChannel": "the in-process link's in-flight queue",
+    "period_mean.PeriodMean": "the running mean over a period",
+    "reduced_q_smoother.ReducedQSmoother": "σ's trigger around OnlineCks.step (a method of "
+                                           "the smoothing core, not yet a function of state)",
+    "robot_predictor.RobotPredictor": "the copies of the onboard chain it simulates",
+    "uplink.Uplink": "the zero-order hold's sequence and stamps",
+}
+"""System → what its callbacks still decide (to move into a pure step)."""
+
+MAX_CALLBACK_LINES = 40
+"""A thin system's longest method body, lines (ports, codec and the call: no logic)."""
+
+
+def _classes():
+    for path in sorted(SYSTEMS.glob("*.py")):
+        tree = ast.parse(path.read_text())
+        for node in tree.body:
+            if isinstance(node, ast.ClassDef):
+                yield f"{path.stem}.{node.name}", node, tree
+
+
+def _declares_state(cls: ast.ClassDef) -> bool:
+    return any(isinstance(call, ast.Call) and isinstance(call.func, ast.Attribute)
+               and call.func.attr.startswith("Declare") and call.func.attr.endswith("State")
+               for call in ast.walk(cls))
+
+
+STATEFUL = {name: (cls, tree) for name, cls, tree in _classes() if _declares_state(cls)}
+
+
+def test_every_stateful_system_is_listed_once():
+    assert set(PURE_STEPS).isdisjoint(NOT_YET)
+    assert set(STATEFUL) == set(PURE_STEPS) | set(NOT_YET), (
+        f"unlisted: {sorted(set(STATEFUL) - set(PURE_STEPS) - set(NOT_YET))}; "
+        f"listed but not stateful: {sorted(set(PURE_STEPS) | set(NOT_YET) - set(STATEFUL))}")
+
+
+@pytest.mark.parametrize("name", sorted(PURE_STEPS))
+def test_a_thin_system_calls_its_pure_step_and_keeps_no_logic(name):
+    cls, tree = STATEFUL[name]
+    module, function = PURE_STEPS[name]
+    imported = {alias.name for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)
+                and node.module == module for alias in node.names}
+    assert function in imported, f"{name} does not import {function} from {module}"
+    called = {node.func.id for node in ast.walk(cls) if isinstance(node, ast.Call)
+              and isinstance(node.func, ast.Name)}
+    assert function in called, f"{name} never calls {function}"
+    for method in cls.body:
+        if isinstance(method, ast.FunctionDef) and method.name != "__init__":
+            body = method.body[1:] if ast.get_docstring(method) else method.body
+            lines = body[-1].end_lineno - body[0].lineno + 1
+            assert lines <= MAX_CALLBACK_LINES, f"{name}.{method.name}: {lines} lines"
+
+
+@pytest.mark.parametrize("module", sorted({module for module, _ in PURE_STEPS.values()}))
+def test_the_pure_steps_live_outside_drake(module):
+    path = Path(__file__).resolve().parents[1].joinpath(
+        *module.split(".")[1:]).with_suffix(".py")
+    tree = ast.parse(path.read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            names = [node.module] if isinstance(node, ast.ImportFrom) else [
+                alias.name for alias in node.names]
+            assert not any(str(n).startswith("pydrake") for n in names), (module, names)
