@@ -2,7 +2,8 @@
 
 This is the last ground-station stage: whatever it holds is what the robot receives (through
 LCM in the split set-up). It never passes a non-finite or wrong-sized command: it re-sends the
-previous one and raises a flag, so the robot holds.
+previous one and raises a flag, so the robot holds. A thin Drake system around the pure step
+:func:`telesmooth.link.uplink.uplink_step`, whose state lives in the Context as one vector.
 """
 
 from __future__ import annotations
@@ -13,6 +14,8 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from telesmooth.arms.joint_vectors import check_finite_per_joint
+from telesmooth.link.uplink import UplinkInputs, UplinkState, uplink_initial_state, uplink_step
+from telesmooth.safety.state_codec import VectorCodec
 from telesmooth.systems.timing import check_period
 
 __all__ = ["Uplink", "UplinkConfig"]
@@ -90,33 +93,29 @@ class Uplink(LeafSystem):
         self._q_smoothed_input = self.DeclareVectorInputPort("q_smoothed", n)
         self._state_smoothed_input = self.DeclareVectorInputPort("state_smoothed", 4 * n)
         self._holding_input = self.DeclareVectorInputPort("holding", 1)
-        # [q_sent, q̇, q̈, q⃛] of the last packet; q_sent is its first J entries.
-        self._state_sent_state = self.DeclareDiscreteState(np.concatenate([q0, np.zeros(3 * n)]))
-        # [sequence number, send time, rejected flag, hold flag] of the last packet.
-        self._packet_state = self.DeclareDiscreteState([-1.0, -1.0, 0.0, 0.0])
+        initial = uplink_initial_state(q0)
+        self._codec = VectorCodec(initial)
+        self._state_index = self.DeclareDiscreteState(self._codec.pack(initial))
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update_packet)
         # A forced update runs the same tick on demand (CalcForcedDiscreteVariableUpdate).
         self.DeclareForcedDiscreteUpdateEvent(self._update_packet)
-        state_only = {self.xd_ticket()}   # outputs read the state only: no feedthrough
+        sent = self._codec.field_slice("state_sent")
 
-        def packet_field(index):
-            return lambda c, out: out.SetAtIndex(
-                0, c.get_discrete_state(self._packet_state).get_value()[index])
+        def state_output(name, where):
+            return self.DeclareVectorOutputPort(
+                name, where.stop - where.start,
+                lambda c, out: out.SetFromVector(self._vector(c)[where]),
+                prerequisites_of_calc={self.xd_ticket()})   # the state only: no feedthrough
 
-        self._q_sent_output = self.DeclareVectorOutputPort(
-            "q_sent", n, lambda c, out: out.SetFromVector(
-                c.get_discrete_state(self._state_sent_state).get_value()[:n]),
-            prerequisites_of_calc=state_only)
-        self._state_sent_output = self.DeclareStateOutputPort(
-            "state_sent", self._state_sent_state)
-        self._sequence_output = self.DeclareVectorOutputPort(
-            "sequence_number", 1, packet_field(0), prerequisites_of_calc=state_only)
-        self._send_time_output = self.DeclareVectorOutputPort(
-            "send_time", 1, packet_field(1), prerequisites_of_calc=state_only)
-        self._rejected_output = self.DeclareVectorOutputPort(
-            "command_rejected", 1, packet_field(2), prerequisites_of_calc=state_only)
-        self._holding_sent_output = self.DeclareVectorOutputPort(
-            "holding_sent", 1, packet_field(3), prerequisites_of_calc=state_only)
+        self._q_sent_output = state_output("q_sent", slice(sent.start, sent.start + n))
+        self._state_sent_output = state_output("state_sent", sent)
+        self._sequence_output = state_output("sequence_number",
+                                             self._codec.field_slice("sequence"))
+        self._send_time_output = state_output("send_time", self._codec.field_slice("send_time"))
+        self._rejected_output = state_output("command_rejected",
+                                             self._codec.field_slice("rejected"))
+        self._holding_sent_output = state_output("holding_sent",
+                                                 self._codec.field_slice("holding"))
 
     @property
     def config(self) -> UplinkConfig:
@@ -149,20 +148,21 @@ class Uplink(LeafSystem):
     def get_command_rejected_output_port(self):
         return self._rejected_output
 
+    def uplink_state(self, context) -> UplinkState:
+        """The last packet, as :func:`~telesmooth.link.uplink.uplink_step` left it."""
+        return self._codec.unpack(self._vector(context))
+
+    def _vector(self, context):
+        return context.get_discrete_state(self._state_index).get_value()
+
     def _update_packet(self, context, discrete_state):
         n = self._num_joints
-        command = np.asarray(self._q_smoothed_input.Eval(context), dtype=float)
         derivatives = np.zeros(3 * n)
         if self._state_smoothed_input.HasValue(context):
             derivatives = np.asarray(self._state_smoothed_input.Eval(context), float)[n:]
-        valid = (command.shape == (n,) and bool(np.all(np.isfinite(command)))
-                 and bool(np.all(np.isfinite(derivatives))))
-        sequence = context.get_discrete_state(self._packet_state).get_value()[0] + 1.0
-        if valid:   # otherwise the previous packet's command is sent again
-            discrete_state.get_mutable_vector(self._state_sent_state).SetFromVector(
-                np.concatenate([command, derivatives]))
         holding = (self._holding_input.HasValue(context)
                    and bool(self._holding_input.Eval(context)[0] > 0.5))
-        discrete_state.get_mutable_vector(self._packet_state).SetFromVector(
-            [sequence, context.get_time(), 0.0 if valid else 1.0,
-             1.0 if (holding or not valid) else 0.0])
+        inputs = UplinkInputs(now=context.get_time(), command=self._q_smoothed_input.Eval(context),
+                              derivatives=derivatives, holding=holding)
+        discrete_state.get_mutable_vector(self._state_index).SetFromVector(
+            self._codec.pack(uplink_step(self.uplink_state(context), inputs)))

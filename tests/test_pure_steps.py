@@ -24,6 +24,7 @@ PURE_STEPS = {
     "link_guard.LinkGuard": ("telesmooth.safety.guard", "guard_step"),
     "link_monitor.LinkMonitor": ("telesmooth.link.monitor", "monitor_step"),
     "operator_console.OperatorConsole": ("telesmooth.console.input", "console_step"),
+    "uplink.Uplink": ("telesmooth.link.uplink", "uplink_step"),
 }
 """System → (module, function) of its pure step."""
 
@@ -39,7 +40,6 @@ NOT_YET = {
     "reduced_q_smoother.ReducedQSmoother": "σ's trigger around OnlineCks.step (a method of "
                                            "the smoothing core, not yet a function of state)",
     "robot_predictor.RobotPredictor": "the copies of the onboard chain it simulates",
-    "uplink.Uplink": "the zero-order hold's sequence and stamps",
 }
 """System → what its callbacks still decide (to move into a pure step)."""
 
