@@ -4,6 +4,7 @@ docs/method.md §5.1, step 1, option: instead of the latest IK sample, the FIFO 
 of the M samples of the last uplink period (M = 25 at 100 Hz / 4 Hz). If the hand noise is white
 this divides its variance by M (use r/M in the smoother); it adds about (M−1)/2 fast samples
 (0.12 s) of delay and attenuates, but does not remove, tremor above the 2 Hz Nyquist rate.
+A thin Drake system around the pure step :func:`telesmooth.smoothing.period_mean.period_mean_step`.
 """
 
 from __future__ import annotations
@@ -14,6 +15,13 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from telesmooth.arms.joint_vectors import check_finite_per_joint
+from telesmooth.safety.state_codec import VectorCodec
+from telesmooth.smoothing.period_mean import (
+    PeriodMeanState,
+    period_mean,
+    period_mean_initial_state,
+    period_mean_step,
+)
 from telesmooth.systems.timing import check_period, samples_per_period
 
 __all__ = ["PeriodMean", "PeriodMeanConfig"]
@@ -74,9 +82,9 @@ class PeriodMean(LeafSystem):
             "initial_position_rad", initial_position_rad, n)
         self._num_joints, self._num_samples = n, m
         self._q_target_input = self.DeclareVectorInputPort("q_target", n)
-        self._ring_state = self.DeclareDiscreteState(np.tile(q0, m))
-        self._cursor_state = self.DeclareDiscreteState([0.0])  # [next slot]
-        self._last_state = self.DeclareDiscreteState(q0.copy())
+        initial = period_mean_initial_state(m, q0)
+        self._codec = VectorCodec(initial)
+        self._state_index = self.DeclareDiscreteState(self._codec.pack(initial))
         self.DeclarePeriodicDiscreteUpdateEvent(config.sample_period_s, 0.0, self._update_ring)
         # A forced update runs the same tick on demand (CalcForcedDiscreteVariableUpdate).
         self.DeclareForcedDiscreteUpdateEvent(self._update_ring)
@@ -88,19 +96,15 @@ class PeriodMean(LeafSystem):
     def get_q_mean_output_port(self):
         return self._q_mean_output
 
+    def period_mean_state(self, context) -> PeriodMeanState:
+        """The ring in ``context``."""
+        return self._codec.unpack(context.get_discrete_state(self._state_index).get_value())
+
     def _calc_q_mean(self, context, output):
-        ring = context.get_discrete_state(self._ring_state).get_value()
-        output.SetFromVector(ring.reshape(self._num_samples, self._num_joints).mean(axis=0))
+        output.SetFromVector(period_mean(self.period_mean_state(context)))
 
     def _update_ring(self, context, discrete_state):
-        sample = np.asarray(self._q_target_input.Eval(context), dtype=float)
-        if not np.all(np.isfinite(sample)):
-            sample = context.get_discrete_state(self._last_state).get_value()
-        ring = context.get_discrete_state(self._ring_state).get_value().reshape(
-            self._num_samples, self._num_joints).copy()
-        cursor = int(context.get_discrete_state(self._cursor_state).get_value()[0])
-        ring[cursor] = sample
-        discrete_state.get_mutable_vector(self._ring_state).SetFromVector(ring.ravel())
-        discrete_state.get_mutable_vector(self._cursor_state).SetFromVector(
-            [float((cursor + 1) % self._num_samples)])
-        discrete_state.get_mutable_vector(self._last_state).SetFromVector(sample)
+        state = period_mean_step(self.period_mean_state(context),
+                                 self._q_target_input.Eval(context))
+        discrete_state.get_mutable_vector(self._state_index).SetFromVector(
+            self._codec.pack(state))

@@ -24,6 +24,7 @@ PURE_STEPS = {
     "link_guard.LinkGuard": ("telesmooth.safety.guard", "guard_step"),
     "link_monitor.LinkMonitor": ("telesmooth.link.monitor", "monitor_step"),
     "operator_console.OperatorConsole": ("telesmooth.console.input", "console_step"),
+    "period_mean.PeriodMean": ("telesmooth.smoothing.period_mean", "period_mean_step"),
     "uplink.Uplink": ("telesmooth.link.uplink", "uplink_step"),
 }
 """System → (module, function) of its pure step."""
@@ -36,7 +37,6 @@ NOT_YET = {
     "laser_tracker.LaserTracker": "the tracker's seeded noise and sample instants",
     "lcm_safe_subscriber.LcmSafeSubscriber": "the packet window and its counts",
     "link_channel.LinkChannel": "the in-process link's in-flight queue",
-    "period_mean.PeriodMean": "the running mean over a period",
     "reduced_q_smoother.ReducedQSmoother": "σ's trigger around OnlineCks.step (a method of "
                                            "the smoothing core, not yet a function of state)",
     "robot_predictor.RobotPredictor": "the copies of the onboard chain it simulates",
