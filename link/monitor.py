@@ -15,7 +15,7 @@ import dataclasses
 import enum
 from typing import NamedTuple
 
-from telesmooth.link.receiver import REJECTION_CLASSES
+from telesmooth.link.receiver import FLAGGED, REJECTION_CLASSES, RejectionCounts
 from telesmooth.link.session import NONCE_BITS, next_session
 
 __all__ = ["LINK_STATUSES", "LinkStatus", "MonitorInputs", "MonitorParams", "MonitorState",
@@ -45,27 +45,22 @@ ONBOARD_COUNTS = ("accepted",) + REJECTION_CLASSES
 
 
 class OnboardCounts(NamedTuple):
-    """The robot's packet counts (fields in :data:`ONBOARD_COUNTS` order)."""
+    """The robot's packet counts, as :data:`ONBOARD_COUNTS` orders them."""
 
     accepted: int = 0
-    invalid: int = 0
-    auth: int = 0
-    duplicate: int = 0
-    stale: int = 0
-    undecodable: int = 0
-    session: int = 0
+    rejected: RejectionCounts = RejectionCounts()
 
     @classmethod
     def of(cls, msg) -> OnboardCounts:
         """The counts a telemetry message carries."""
-        return cls(msg.accepted_count, msg.rejected_invalid_count, msg.rejected_auth_count,
-                   msg.dropped_duplicate_count, msg.dropped_stale_count,
-                   msg.undecodable_count, msg.rejected_session_count)
+        return cls(msg.accepted_count, RejectionCounts(
+            msg.rejected_invalid_count, msg.rejected_auth_count, msg.dropped_duplicate_count,
+            msg.dropped_stale_count, msg.undecodable_count, msg.rejected_session_count))
 
     @property
     def flagged(self) -> int:
-        """The rejections that raise the robot's flag (invalid, auth, undecodable, session)."""
-        return self.invalid + self.auth + self.undecodable + self.session
+        """The rejections that raise the robot's flag (``receiver.FLAGGED``)."""
+        return sum(getattr(self.rejected, kind.label) for kind in FLAGGED)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -60,7 +60,7 @@ def test_a_script_of_telemetry():
     # A new invalid packet on the robot: degraded for the poll that reads it.
     state = monitor_step(PARAMS, state, MonitorInputs(
         now=0.4, count=4, sent=5, message=_telemetry(session=ours, seq=5, invalid=1)))
-    assert state.status == LinkStatus.DEGRADED and state.counts.invalid == 1
+    assert state.status == LinkStatus.DEGRADED and state.counts.rejected.invalid == 1
     state = monitor_step(PARAMS, state, MonitorInputs(
         now=0.45, count=4, sent=5, message=_telemetry(mode=2)))   # same count: not read
     assert state.status == LinkStatus.OK and state.guard_mode == 0
