@@ -26,7 +26,9 @@ __all__ = [
     "PAIRED_SHARE",
     "UNCONSTRAINED",
     "WITHIN_THE_LIMITS",
+    "PAIRED_CLAIMS",
     "check_claims",
+    "paired_claims",
     "paired_ratio",
     "summarize",
     "summarize_cells",
@@ -446,3 +448,100 @@ def check_claims(summary: dict, kf_form: str = "kf") -> dict:
     else:
         verdict("C8", None, "the C8 study was not run", {})
     return claims
+
+
+P_MARGIN_PERCENT = 1.0
+"""Practical-equivalence margin of P: a paired median difference under 1 percentage point is
+a tie."""
+
+DEFORMATION_MARGIN_M = 1e-6
+"""Practical-equivalence margin of a Cartesian deformation: the laser tracker's 0.001 mm."""
+
+PAIRED_CLAIMS = {
+    "C4": ("\"the performance of Offline-CKS is the best\": its P against every other "
+           "smoother's, paired over the demonstrations", "improvement_ratio_percent"),
+    "C5": ("the constrained smoother against its unconstrained counterpart: Offline-CKS "
+           "against Offline-KS, Online-CKS against BMFLS, on P", "improvement_ratio_percent"),
+    "C6": ("Offline-CKS deforms the end-effector track less than Online-CKS "
+           "(mean Cartesian deformation)", "cartesian_deformation_mean_m"),
+}
+"""The claims judged pair by pair (:func:`paired_claims`): the statement and the figure."""
+
+
+def _paired_figure(records: list[dict], figure: str, a: str, b: str):
+    """``figure`` of runs ``a`` and ``b`` on every demonstration both ran (main study), in
+    the same order, and the demonstrations' names."""
+    values: dict = {}
+    for record in records:
+        if record["kind"] == "run" and record["study"] == "main" and record["label"] in (a, b):
+            values.setdefault((record["shape"], record["demo"]), {})[record["label"]] = \
+                record["metrics"][figure]
+    both = sorted(demo for demo, pair in values.items() if a in pair and b in pair)
+    return (np.array([values[d][a] for d in both], dtype=float),
+            np.array([values[d][b] for d in both], dtype=float), both)
+
+
+def _pairs_for(claim: str, labels: set, kf_form: str) -> list[tuple[str, str]]:
+    if claim == "C4":
+        others = [label for label in ("offline-ks", kf_form, "bmfls", "online-cks")
+                  if label in labels]
+        return [("offline-cks", other) for other in others]
+    if claim == "C5":
+        return [("offline-cks", "offline-ks"), ("online-cks", "bmfls")]
+    return [("offline-cks", "online-cks")]
+
+
+def paired_claims(records: list[dict], kf_form: str = "kf") -> dict:
+    """C4, C5 and C6 as the paper states them, judged pair by pair over the demonstrations
+    of each cell with :func:`~telesmooth.studies.verdicts.compare_paired` (margins
+    :data:`P_MARGIN_PERCENT`, :data:`DEFORMATION_MARGIN_M`).
+
+    A claim holds in a cell when every pair it names is ``better`` (C4: Offline-CKS better or
+    tied with each other smoother, "best" allowing a tie, and better than at least one); the
+    verdict over cells is :func:`~telesmooth.studies.verdicts.cell_verdict`'s.
+
+    Returns:
+        {claim: {"statement", "figure", "cells": {cell: {"verdict", "pairs": [{"a", "b",
+        "n", "median_difference", "interval", "p_value", "verdict"}]}}, "verdict"}}.
+    """
+    from telesmooth.studies.verdicts import cell_verdict, compare_paired
+
+    records = _with_p([r for r in records if "error" not in r])
+    cells: dict = {}
+    for record in records:
+        cells.setdefault(cell_name(record.get("plant", "lab"), record.get("speed", 1.0)),
+                         []).append(record)
+    out = {}
+    for claim, (statement, figure) in PAIRED_CLAIMS.items():
+        higher = figure == "improvement_ratio_percent"
+        margin = P_MARGIN_PERCENT if higher else DEFORMATION_MARGIN_M
+        per_cell = {}
+        for cell, rows in cells.items():
+            labels = {r["label"] for r in rows if r["kind"] == "run"}
+            pairs = []
+            for a, b in _pairs_for(claim, labels, kf_form):
+                if a not in labels or b not in labels:
+                    continue
+                first, second, _ = _paired_figure(rows, figure, a, b)
+                if not np.any(np.isfinite(first) & np.isfinite(second)):
+                    continue
+                result = compare_paired(first, second, margin=margin, higher_is_better=higher)
+                pairs.append({"a": a, "b": b, "n": result.n,
+                              "median_difference": result.median_difference,
+                              "interval": list(result.interval), "p_value": result.p_value,
+                              "verdict": result.verdict})
+            if not pairs:
+                continue
+            verdicts = [p["verdict"] for p in pairs]
+            if claim == "C4":
+                holds = all(v in ("better", "tie") for v in verdicts) and "better" in verdicts
+                verdict = "better" if holds else (
+                    "tie" if all(v == "tie" for v in verdicts) else "not")
+            else:
+                verdict = ("better" if all(v == "better" for v in verdicts) else
+                           "tie" if all(v == "tie" for v in verdicts) else "not")
+            per_cell[cell] = {"verdict": verdict, "pairs": pairs}
+        out[claim] = {"statement": statement, "figure": figure, "cells": per_cell,
+                      "verdict": (cell_verdict({c: v["verdict"] for c, v in per_cell.items()})
+                                  if per_cell else "not run")}
+    return out
