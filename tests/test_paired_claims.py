@@ -27,24 +27,24 @@ DEFORMATION = {1.0: {"offline-cks": 1e-5, "online-cks": 3e-5},
                4.0: {"offline-cks": 2e-5, "online-cks": 2e-5 + 1e-7}}
 
 
+def _record(speed, demo, label, e, deformation):
+    return {"kind": "run", "study": "main", "shape": "Angle", "demo": demo, "method": label,
+            "label": label, "plant": "lab", "speed": speed,
+            "metrics": {"e_sum_m": e, "latency_s": 0.0,
+                        "cartesian_deformation_mean_m": deformation}}
+
+
 def _records():
     records = []
     for speed, methods in P.items():
         for demo in range(DEMOS):
             e_original = 1.0 + 0.1 * demo
             wobble = 0.05 * np.sin(1.7 * demo)             # well under every gap and margin
-
-            def run(label, e, deformation=5e-5):
-                records.append({
-                    "kind": "run", "study": "main", "shape": "Angle", "demo": demo,
-                    "method": label, "label": label, "plant": "lab", "speed": speed,
-                    "metrics": {"e_sum_m": e, "latency_s": 0.0,
-                                "cartesian_deformation_mean_m": deformation}})
-
-            run("original", e_original, 0.0)
+            records.append(_record(speed, demo, "original", e_original, 0.0))
             for label, p in methods.items():
-                run(label, e_original * (1.0 - (p + wobble) / 100.0),
-                    DEFORMATION[speed].get(label, 5e-5) * (1.0 + 0.001 * wobble))
+                records.append(_record(
+                    speed, demo, label, e_original * (1.0 - (p + wobble) / 100.0),
+                    DEFORMATION[speed].get(label, 5e-5) * (1.0 + 0.001 * wobble)))
     return records
 
 
