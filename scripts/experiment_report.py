@@ -37,8 +37,11 @@ from telesmooth.scripts.formatting import log as _log
 from telesmooth.studies.claims import (
     APPROXIMATE_LIMIT,
     C1_QUANTILE,
+    DEFORMATION_MARGIN_M,
+    P_MARGIN_PERCENT,
     PAIRED_SHARE,
     check_claims,
+    paired_claims,
     summarize_cells,
 )
 from telesmooth.studies.comparison import LEAST_DEFORMATION
@@ -464,6 +467,42 @@ def verdict_table_markdown(claims_by_cell: dict) -> str:
     return "\n".join(lines)
 
 
+def paired_claims_markdown(paired: dict) -> str:
+    """The claims judged pair by pair (:func:`~telesmooth.studies.claims.paired_claims`): a
+    verdict table (claims × cells, and over cells), then every pair with its median paired
+    difference, interval, Wilcoxon p and verdict."""
+    cells = list(dict.fromkeys(cell for claim in paired.values() for cell in claim["cells"]))
+    lines = ["| claim | " + " | ".join(cells) + " | over cells |",
+             "|---|" + "---|" * (len(cells) + 1)]
+    for name, claim in paired.items():
+        lines.append(f"| {name} | " + " | ".join(
+            claim["cells"][cell]["verdict"] if cell in claim["cells"] else "—" for cell in cells)
+            + f" | {claim['verdict']} |")
+    lines += ["", "| claim | cell | A against B | figure | pairs | median A − B [95 % "
+              "interval] | Wilcoxon p | verdict for A |", "|---|---|---|---|---|---|---|---|"]
+    for name, claim in paired.items():
+        scale, unit = ((1.0, "points") if claim["figure"] == "improvement_ratio_percent"
+                       else (1e3, "mm"))
+        for cell, result in claim["cells"].items():
+            for pair in result["pairs"]:
+                low, high = (scale * v for v in pair["interval"])
+                lines.append(
+                    f"| {name} | {cell} | {pair['a']} against {pair['b']} | "
+                    f"{'P' if scale == 1.0 else 'E_def Cartesian'} | {pair['n']} | "
+                    f"{scale * pair['median_difference']:.4g} [{low:.4g}, {high:.4g}] {unit} | "
+                    f"{pair['p_value']:.2g} | {pair['verdict']} |")
+    lines += ["", f"Pairs over the demonstrations both methods ran. A difference smaller than "
+              f"the practical-equivalence margin ({P_MARGIN_PERCENT:g} percentage point of P; "
+              f"{DEFORMATION_MARGIN_M * 1e3:g} mm, the tracker's accuracy, of a deformation) is "
+              "a tie; *better* needs the median's distribution-free 95 % interval beyond 0 "
+              "and the median at least the margin; *inconclusive* when the interval reaches "
+              "past the margin and includes 0. In a cell a claim is *better* when every pair it "
+              "names is (C4: Offline-CKS better than or tied with each, better than one)."]
+    for name, claim in paired.items():
+        lines.append(f"- {name}: {claim['statement']}.")
+    return "\n".join(lines)
+
+
 def _slug(cell: str) -> str:
     return "".join(ch if ch.isalnum() else "_" for ch in cell).strip("_") + "_"
 
@@ -576,7 +615,8 @@ def _chain_lines(config: ExperimentConfig, meta: dict) -> list[str]:
     return lines + [""]
 
 
-def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figures, meta) -> str:
+def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figures, meta,
+                 paired: dict | None = None) -> str:
     lines = [
         "# telesmooth experiment: the paper's claims on real human demonstrations",
         "",
@@ -631,6 +671,10 @@ def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figure
         "as found.",
         "",
     ]
+    if paired:
+        lines += ["## Paired verdicts: C4, C5 and C6 as the paper states them", "",
+                  "The same records judged pair by pair over the demonstrations (the rules "
+                  "above stay, for comparison).", "", paired_claims_markdown(paired), ""]
     for cell, summary in summaries.items():
         lines += _cell_section(cell, summary, claims[cell], figures[cell], config.kf_form)
     return "\n".join(lines)
@@ -876,6 +920,7 @@ def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, 
     summaries = summarize_cells(records)
     claims = {cell: check_claims(summary, config.kf_form)
               for cell, summary in summaries.items()}
+    paired = paired_claims(records, config.kf_form)
     mapping = base.haptic.lasa_mapping
     chains: dict[str, int] = {}
     for record in records:
@@ -895,7 +940,8 @@ def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, 
     data = {"config": dataclasses.asdict(config), "meta": meta,
             "cells": {cell: {k: v for k, v in summary.items() if k != "records"}
                       for cell, summary in summaries.items()},
-            "claims": claims, "records": [r for s in summaries.values() for r in s["records"]]}
+            "claims": claims, "paired_claims": paired,
+            "records": [r for s in summaries.values() for r in s["records"]]}
     write_text(out / "experiment.json", json.dumps(data, indent=1, default=float) + "\n")
     write_text(out / "table.md", "\n\n".join(
         f"## {cell}\n\n" + main_table_markdown(summary)
@@ -904,7 +950,7 @@ def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, 
                                     else "", suffix=f" ({cell})" if len(summaries) > 1 else "")
                for cell, summary in summaries.items()}
     report = out / "report.md"
-    text = _report_text(config, summaries, claims, figures, meta)
+    text = _report_text(config, summaries, claims, figures, meta, paired)
     if missing:
         text = (f"> **Incomplete:** {missing} of {len(tasks)} tasks are not in this folder "
                 "yet (a shard, or an interrupted run: rerun with the same --out to finish, "

@@ -458,8 +458,8 @@ DEFORMATION_MARGIN_M = 1e-6
 """Practical-equivalence margin of a Cartesian deformation: the laser tracker's 0.001 mm."""
 
 PAIRED_CLAIMS = {
-    "C4": ("\"the performance of Offline-CKS is the best\": its P against every other "
-           "smoother's, paired over the demonstrations", "improvement_ratio_percent"),
+    "C4": ("\"the performance of Offline-CKS is the best\", judged as its P against every "
+           "other smoother's, paired over the demonstrations", "improvement_ratio_percent"),
     "C5": ("the constrained smoother against its unconstrained counterpart: Offline-CKS "
            "against Offline-KS, Online-CKS against BMFLS, on P", "improvement_ratio_percent"),
     "C6": ("Offline-CKS deforms the end-effector track less than Online-CKS "

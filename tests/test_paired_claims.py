@@ -80,3 +80,18 @@ def test_over_cells(verdicts):
     assert verdicts["C4"]["verdict"] == f"partly ({lab1})"
     assert verdicts["C5"]["verdict"] == "does not hold"
     assert verdicts["C6"]["verdict"] == f"partly ({lab1})"
+
+
+def test_the_report_section(verdicts):
+    from telesmooth.scripts.experiment_report import paired_claims_markdown
+
+    text = paired_claims_markdown(verdicts)
+    lab1, lab4 = cell_name("lab", 1.0), cell_name("lab", 4.0)
+    lines = text.splitlines()
+    assert lines[0] == f"| claim | {lab1} | {lab4} | over cells |"
+    assert "| C5 | not | not | does not hold |" in lines
+    assert f"| C4 | better | not | partly ({lab1}) |" in lines
+    row = next(line for line in lines if line.startswith(f"| C5 | {lab1} | online-cks"))
+    assert row.endswith("| tie |") and "| P | 12 |" in row
+    row = next(line for line in lines if line.startswith(f"| C6 | {lab1} |"))
+    assert "-0.02 [" in row and "mm" in row and row.endswith("| better |")
