@@ -496,8 +496,9 @@ def paired_claims_markdown(paired: dict) -> str:
               f"{DEFORMATION_MARGIN_M * 1e3:g} mm, the tracker's accuracy, of a deformation) is "
               "a tie; *better* needs the median's distribution-free 95 % interval beyond 0 "
               "and the median at least the margin; *inconclusive* when the interval reaches "
-              "past the margin and includes 0. In a cell a claim is *better* when every pair it "
-              "names is (C4: Offline-CKS better than or tied with each, better than one)."]
+              "past the margin and includes 0, or with fewer than 6 pairs (no 95 % "
+              "interval). In a cell a claim is *better* when every pair it names is (C4: "
+              "Offline-CKS better than or tied with each, better than one)."]
     for name, claim in paired.items():
         lines.append(f"- {name}: {claim['statement']}.")
     return "\n".join(lines)

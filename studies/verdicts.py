@@ -30,7 +30,8 @@ PAIR_VERDICTS = ("better", "tie", "worse", "inconclusive")
 """``better``: the interval lies beyond 0 on the better side and the median is at least the
 margin; ``worse``: the same on the other side; ``tie``: the interval lies within ±margin, or
 the difference is significant but smaller than the margin; ``inconclusive``: anything else
-(the interval reaches past the margin and includes 0)."""
+(the interval reaches past the margin and includes 0, or there are too few pairs for an
+interval of the level: fewer than 6 at 95 %)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,6 +118,8 @@ def compare_paired(a, b, *, margin: float, higher_is_better: bool,
     gain = sign * median
     if -margin < gain_low and gain_high < margin:
         verdict = "tie"
+    elif coverage < level:
+        verdict = "inconclusive"          # too few pairs for an interval of that level
     elif gain_low > 0.0:
         verdict = "better" if gain >= margin else "tie"
     elif gain_high < 0.0:

@@ -114,3 +114,15 @@ def test_claims_over_cells_and_variants():
     assert robustness({"kf": "holds", "kf-predictor": "holds"}) == "holds"
     assert robustness({"kf": "holds", "kf-predictor": "does not hold"}) == (
         "depends on kf → holds, kf-predictor → does not hold")
+
+
+def test_too_few_pairs_for_the_level_are_inconclusive_unless_within_the_margin():
+    # Five pairs cannot give a 95 % interval (the whole range covers 1 − 2/32 = 0.94).
+    result = compare_paired([12.0, 13.0, 14.0, 15.0, 16.0], [1.0] * 5, margin=1.0,
+                            higher_is_better=True)
+    assert result.confidence == pytest.approx(1 - 2 / 32) and result.verdict == "inconclusive"
+    six = compare_paired([12.0, 13.0, 14.0, 15.0, 16.0, 17.0], [1.0] * 6, margin=1.0,
+                         higher_is_better=True)
+    assert six.confidence == pytest.approx(1 - 2 / 64) and six.verdict == "better"
+    small = compare_paired([1.2, 1.3], [1.0, 1.0], margin=1.0, higher_is_better=True)
+    assert small.verdict == "tie"           # every difference within the margin
