@@ -491,6 +491,21 @@ def _pairs_for(claim: str, labels: set, kf_form: str) -> list[tuple[str, str]]:
     return [("offline-cks", "online-cks")]
 
 
+def _claim_in_cell(claim: str, verdicts: list[str]) -> str:
+    """A claim's verdict in one cell from its pairs': ``not`` when a pair is worse,
+    ``inconclusive`` when one is, ``tie`` when all are ties, ``better`` when all are better
+    (C4, "the best": better than or tied with each, better than one), else ``not``."""
+    if "worse" in verdicts:
+        return "not"
+    if "inconclusive" in verdicts:
+        return "inconclusive"
+    if all(v == "tie" for v in verdicts):
+        return "tie"
+    if claim == "C4" or all(v == "better" for v in verdicts):
+        return "better"
+    return "not"
+
+
 def paired_claims(records: list[dict], kf_form: str = "kf") -> dict:
     """C4, C5 and C6 as the paper states them, judged pair by pair over the demonstrations
     of each cell with :func:`~telesmooth.studies.verdicts.compare_paired` (margins
@@ -532,14 +547,7 @@ def paired_claims(records: list[dict], kf_form: str = "kf") -> dict:
                               "verdict": result.verdict})
             if not pairs:
                 continue
-            verdicts = [p["verdict"] for p in pairs]
-            if claim == "C4":
-                holds = all(v in ("better", "tie") for v in verdicts) and "better" in verdicts
-                verdict = "better" if holds else (
-                    "tie" if all(v == "tie" for v in verdicts) else "not")
-            else:
-                verdict = ("better" if all(v == "better" for v in verdicts) else
-                           "tie" if all(v == "tie" for v in verdicts) else "not")
+            verdict = _claim_in_cell(claim, [p["verdict"] for p in pairs])
             per_cell[cell] = {"verdict": verdict, "pairs": pairs}
         out[claim] = {"statement": statement, "figure": figure, "cells": per_cell,
                       "verdict": (cell_verdict({c: v["verdict"] for c, v in per_cell.items()})

@@ -132,19 +132,24 @@ def compare_paired(a, b, *, margin: float, higher_is_better: bool,
 
 
 def cell_verdict(verdicts: dict, wanted: str = "better") -> str:
-    """A claim's verdict over cells from each cell's pair verdict: ``holds`` when every cell
-    is ``wanted``, ``tie`` when every cell is a tie, ``does not hold`` when none is ``wanted``
-    (and not all are ties), else ``partly (cells …)`` naming the cells where it holds."""
+    """A claim's verdict over cells from each cell's verdict: ``holds`` when every cell is
+    ``wanted``, ``tie`` when every cell is a tie, ``inconclusive`` when every cell is,
+    ``does not hold`` when none is ``wanted``, else ``partly (cells …)`` naming the cells where
+    it holds; the cells where it is inconclusive are named after a semicolon."""
     if not verdicts:
         raise ValueError("no cells")
     holding = [cell for cell, verdict in verdicts.items() if verdict == wanted]
+    unclear = [cell for cell, verdict in verdicts.items() if verdict == "inconclusive"]
     if len(holding) == len(verdicts):
         return "holds"
     if all(verdict == "tie" for verdict in verdicts.values()):
         return "tie"
+    if len(unclear) == len(verdicts):
+        return "inconclusive"
+    aside = ("; inconclusive in " + ", ".join(str(cell) for cell in unclear)) if unclear else ""
     if not holding:
-        return "does not hold"
-    return "partly (" + ", ".join(str(cell) for cell in holding) + ")"
+        return "does not hold" + aside
+    return "partly (" + ", ".join(str(cell) for cell in holding) + aside + ")"
 
 
 def robustness(verdicts_by_variant: dict) -> str:

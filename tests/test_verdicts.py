@@ -111,6 +111,11 @@ def test_claims_over_cells_and_variants():
     assert cell_verdict({"lab 1x": "tie", "lab 4x": "worse"}) == "does not hold"
     assert cell_verdict({"lab 1x": "better", "lab 4x": "tie",
                          "lightweight 4x": "better"}) == "partly (lab 1x, lightweight 4x)"
+    assert cell_verdict({"a": "inconclusive", "b": "inconclusive"}) == "inconclusive"
+    assert cell_verdict({"a": "not", "b": "inconclusive"}) == (
+        "does not hold; inconclusive in b")
+    assert cell_verdict({"a": "better", "b": "inconclusive", "c": "not"}) == (
+        "partly (a; inconclusive in b)")
     assert robustness({"kf": "holds", "kf-predictor": "holds"}) == "holds"
     assert robustness({"kf": "holds", "kf-predictor": "does not hold"}) == (
         "depends on kf → holds, kf-predictor → does not hold")
