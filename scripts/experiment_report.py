@@ -46,6 +46,7 @@ from telesmooth.studies.claims import (
 )
 from telesmooth.studies.comparison import LEAST_DEFORMATION
 from telesmooth.studies.experiment import (
+    KF_FORMS,
     ExperimentConfig,
     experiment_scenario,
     make_tasks,
@@ -504,6 +505,23 @@ def paired_claims_markdown(paired: dict) -> str:
     return "\n".join(lines)
 
 
+def kf_robustness_markdown(claims_by_form: dict) -> str:
+    """Claims × cells under each KF form (:data:`~telesmooth.studies.experiment.KF_FORMS`):
+    the verdict when both forms give it, else "depends on" naming each form's verdict."""
+    from telesmooth.studies.verdicts import robustness
+
+    forms = list(claims_by_form)
+    first = claims_by_form[forms[0]]
+    cells = list(first)
+    names = list(next(iter(first.values()))) if cells else []
+    lines = ["| claim | " + " | ".join(cells) + " |", "|---|" + "---|" * len(cells)]
+    for name in names:
+        lines.append(f"| {name} | " + " | ".join(
+            robustness({form: claims_by_form[form][cell][name]["verdict"] for form in forms})
+            for cell in cells) + " |")
+    return "\n".join(lines)
+
+
 def _slug(cell: str) -> str:
     return "".join(ch if ch.isalnum() else "_" for ch in cell).strip("_") + "_"
 
@@ -617,7 +635,7 @@ def _chain_lines(config: ExperimentConfig, meta: dict) -> list[str]:
 
 
 def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figures, meta,
-                 paired: dict | None = None) -> str:
+                 paired: dict | None = None, by_kf_form: dict | None = None) -> str:
     lines = [
         "# telesmooth experiment: the paper's claims on real human demonstrations",
         "",
@@ -672,6 +690,12 @@ def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figure
         "as found.",
         "",
     ]
+    if by_kf_form:
+        lines += ["## The verdicts under either KF form", "",
+                  "The paper does not say which form its KF comparator took: every claim judged "
+                  "with the a-posteriori filter (`kf`) and with its one-step predictor "
+                  "(`kf-predictor`); a verdict that differs is written \"depends on\" with "
+                  "each form's.", "", kf_robustness_markdown(by_kf_form), ""]
     if paired:
         lines += ["## Paired verdicts: C4, C5 and C6 as the paper states them", "",
                   "The same records judged pair by pair over the demonstrations (the rules "
@@ -922,6 +946,10 @@ def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, 
     claims = {cell: check_claims(summary, config.kf_form)
               for cell, summary in summaries.items()}
     paired = paired_claims(records, config.kf_form)
+    by_kf_form = {form: (claims if form == config.kf_form else
+                         {cell: check_claims(summary, form)
+                          for cell, summary in summaries.items()})
+                  for form in KF_FORMS}
     mapping = base.haptic.lasa_mapping
     chains: dict[str, int] = {}
     for record in records:
@@ -941,7 +969,7 @@ def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, 
     data = {"config": dataclasses.asdict(config), "meta": meta,
             "cells": {cell: {k: v for k, v in summary.items() if k != "records"}
                       for cell, summary in summaries.items()},
-            "claims": claims, "paired_claims": paired,
+            "claims": claims, "claims_by_kf_form": by_kf_form, "paired_claims": paired,
             "records": [r for s in summaries.values() for r in s["records"]]}
     write_text(out / "experiment.json", json.dumps(data, indent=1, default=float) + "\n")
     write_text(out / "table.md", "\n\n".join(
@@ -951,7 +979,7 @@ def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, 
                                     else "", suffix=f" ({cell})" if len(summaries) > 1 else "")
                for cell, summary in summaries.items()}
     report = out / "report.md"
-    text = _report_text(config, summaries, claims, figures, meta, paired)
+    text = _report_text(config, summaries, claims, figures, meta, paired, by_kf_form)
     if missing:
         text = (f"> **Incomplete:** {missing} of {len(tasks)} tasks are not in this folder "
                 "yet (a shard, or an interrupted run: rerun with the same --out to finish, "

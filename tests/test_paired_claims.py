@@ -95,3 +95,14 @@ def test_the_report_section(verdicts):
     assert row.endswith("| tie |") and "| P | 12 |" in row
     row = next(line for line in lines if line.startswith(f"| C6 | {lab1} |"))
     assert "-0.02 [" in row and "mm" in row and row.endswith("| better |")
+
+
+def test_the_kf_form_robustness_table():
+    from telesmooth.scripts.experiment_report import kf_robustness_markdown
+
+    cell = cell_name("lab", 1.0)
+    by_form = {"kf": {cell: {"C1": {"verdict": "holds"}, "C2": {"verdict": "partly"}}},
+               "kf-predictor": {cell: {"C1": {"verdict": "holds"}, "C2": {"verdict": "holds"}}}}
+    lines = kf_robustness_markdown(by_form).splitlines()
+    assert lines == [f"| claim | {cell} |", "|---|---|", "| C1 | holds |",
+                     "| C2 | depends on kf → partly, kf-predictor → holds |"]
