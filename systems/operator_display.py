@@ -45,6 +45,12 @@ IK_HELD_RGBA = Rgba(0.95, 0.65, 0.1, 1.0)
 RECEIVED_RGBA = Rgba(0.05, 0.05, 0.05, 1.0)
 PREDICTED_RGBA = Rgba(0.1, 0.75, 0.3, 0.35)
 HAND_RGBA = Rgba(0.95, 0.3, 0.7, 1.0)
+HAND_OVER_TOOL = 1.25
+"""The hand's ball, in radii of the tool link (a smaller one hides inside the solid arm)."""
+LEGEND = ("solid: planning; wire: from robot",
+          "green: predicted; pink: hand; red: hit")
+"""What each drawing is, as rows of the control panel above the status (a page read without
+docs/operator.md must say which arm is which; each fits the 240-pixel panel)."""
 TRAIL_RGBA = Rgba(0.2, 0.2, 0.2, 1.0)
 
 
@@ -235,7 +241,11 @@ class OperatorDisplay(LeafSystem):
         self._predicted = ArmDrawing(meshcat, self._arm, "/operator/predicted",
                                      rgba=PREDICTED_RGBA)
         self._planning_rgba = PLANNING_RGBA
-        meshcat.SetObject("/operator/hand", Sphere(0.015), HAND_RGBA)
+        # Wider than the tool link, so the hand shows where the solid arm reaches it.
+        meshcat.SetObject("/operator/hand", Sphere(HAND_OVER_TOOL * self._arm.links[-1].radius_m),
+                          HAND_RGBA)
+        for row in LEGEND:
+            meshcat.AddButton(row)
         if self._planar:
             # Above the arm, the workspace filling most of the page left of the controls.
             meshcat.SetCameraPose(np.array([0.62, -0.05, 1.7]), np.array([0.62, 0.0, 0.0]))

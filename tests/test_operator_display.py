@@ -301,3 +301,18 @@ def test_the_displayed_fd_ratios_count_every_packet_a_hold_repeats_and_restart_a
     assert (acc, jerk) == (0.0, 0.0)
     acc, jerk = send(9, 0.5)
     assert (acc, jerk) == (0.0, 0.0)
+
+
+def test_the_page_says_which_drawing_is_which():
+    """The legend rows are on the page (Meshcat knows a button by each name: counting its
+    clicks would raise otherwise), each short enough for the control panel."""
+    from pydrake.geometry import Meshcat, MeshcatParams
+
+    from telesmooth.systems.operator_display import LEGEND, OperatorDisplay
+
+    meshcat = Meshcat(MeshcatParams(host="127.0.0.1"))
+    OperatorDisplay(meshcat, AIR_BEARING_ARM_3DOF, pose_names=("x_m", "y_m", "phi_rad"),
+                    period_s=0.04, uplink_period_s=0.25, max_acceleration=np.ones(3),
+                    max_jerk=np.ones(3), residual_warning_m=1e-4)
+    assert len(LEGEND) == 2 and all(len(row) <= 40 for row in LEGEND)
+    assert [meshcat.GetButtonClicks(row) for row in LEGEND] == [0, 0]

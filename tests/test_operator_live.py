@@ -32,6 +32,7 @@ from process_fixtures import PROCESS_TEST_TIMEOUT_S, CliProcess, worker_port
 
 from telesmooth.safety.guard import fd_limits_ratio
 from telesmooth.systems.operator_console import ENABLE_BUTTON, SLIDERS, STOP_BUTTON
+from telesmooth.systems.operator_display import LEGEND
 
 pytestmark = pytest.mark.process
 
@@ -211,7 +212,9 @@ _PAGE_PROBE = """
 def test_driven_from_a_real_browser(tmp_path):
     executable = _chromium_or_skip()
     playwright = pytest.importorskip("playwright.sync_api")
-    process, out, url, started = _start(tmp_path, 14.0, 7790)
+    # Ended by SIGINT once the page is shot: however long the software-rendered page takes
+    # to load, the session still runs when the picture is taken.
+    process, out, url, started = _start(tmp_path, 300.0, 7790)
     marks = {}
     shot = tmp_path / "console.png"
     with playwright.sync_playwright() as p:
@@ -220,7 +223,8 @@ def test_driven_from_a_real_browser(tmp_path):
             "--disable-background-networking", "--disable-component-update",
             "--disable-sync", "--no-first-run"])
         try:
-            page = browser.new_page(viewport={"width": 1024, "height": 640})
+            # Tall enough for the whole control panel (scene tree, controls, legend, status).
+            page = browser.new_page(viewport={"width": 1024, "height": 900})
             page.goto(url)
             page.wait_for_function("() => window.viewer && viewer.scene_tree && "
                                    "viewer.scene_tree.find(['operator','planning','link1'])"
@@ -237,13 +241,16 @@ def test_driven_from_a_real_browser(tmp_path):
                 page.keyboard.press("KeyD")
                 time.sleep(0.033)
             time.sleep(2.0)
+            # The picture is of a live page: the session still runs (a slow page load once
+            # left only the page's "no connection" banner over the last frame).
+            assert process.poll() is None, "the session ended before the screenshot"
             page.screenshot(path=str(shot))
             probe = page.evaluate("() => window.__probe")
             rows = page.evaluate("() => Array.from(document.querySelectorAll('.property-name'))"
                                  ".map(e => e.textContent)")
         finally:
             browser.close()
-    _finish(process)
+    assert process.stop() == 0, process.log_path.read_text()
     keep = os.environ.get("TELESMOOTH_SCREENSHOT_DIR")
     if keep:
         Path(keep).mkdir(parents=True, exist_ok=True)
@@ -252,6 +259,7 @@ def test_driven_from_a_real_browser(tmp_path):
     # The page showed the console's controls and the status panel.
     assert ENABLE_BUTTON in rows and STOP_BUTTON in rows
     assert any(row.startswith("clutch ENGAGED") for row in rows), rows
+    assert set(LEGEND) <= set(rows), rows                 # which arm is which
 
     hand = _floats(out / "operator.csv")
     t, x = hand["t"], hand["x_m"]
