@@ -172,7 +172,6 @@ def fifo_step(params: FifoParams, state: FifoState,
         window = np.tile(command, (lag + 1, 1))
     else:
         window = np.vstack([state.queue, sample[None, :]])
-        clutch_released = False
     new_state = state._replace(
         queue=window[1:], holding=hold, clutch_released=clutch_released and hold,
         last_delayed=window[0])

@@ -492,7 +492,7 @@ def _load_scenario(args, overrides=None):
     options = {}
     if getattr(args, "on_collision", None) is not None:
         options["fifo"] = {"on_collision": args.on_collision}
-    chain = getattr(args, "scenario_chain", None) or getattr(args, "chain", None)
+    chain = getattr(args, "chain", None)
     if chain is not None:
         options["chain"] = chain
     options = merge_data(options, overrides or {})

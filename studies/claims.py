@@ -470,7 +470,7 @@ PAIRED_CLAIMS = {
 
 def _paired_figure(records: list[dict], figure: str, a: str, b: str):
     """``figure`` of runs ``a`` and ``b`` on every demonstration both ran (main study), in
-    the same order, and the demonstrations' names."""
+    the same order."""
     values: dict = {}
     for record in records:
         if record["kind"] == "run" and record["study"] == "main" and record["label"] in (a, b):
@@ -478,7 +478,7 @@ def _paired_figure(records: list[dict], figure: str, a: str, b: str):
                 record["metrics"][figure]
     both = sorted(demo for demo, pair in values.items() if a in pair and b in pair)
     return (np.array([values[d][a] for d in both], dtype=float),
-            np.array([values[d][b] for d in both], dtype=float), both)
+            np.array([values[d][b] for d in both], dtype=float))
 
 
 def _pairs_for(claim: str, labels: set, kf_form: str) -> list[tuple[str, str]]:
@@ -521,11 +521,13 @@ def paired_claims(records: list[dict], kf_form: str = "kf") -> dict:
     """
     from telesmooth.studies.verdicts import cell_verdict, compare_paired
 
-    records = _with_p([r for r in records if "error" not in r])
     cells: dict = {}
     for record in records:
-        cells.setdefault(cell_name(record.get("plant", "lab"), record.get("speed", 1.0)),
-                         []).append(record)
+        if "error" not in record:
+            cells.setdefault(cell_name(record.get("plant", "lab"), record.get("speed", 1.0)),
+                             []).append(record)
+    # P against the original of the same cell (the originals differ by plant and speed).
+    cells = {cell: _with_p(rows) for cell, rows in cells.items()}
     out = {}
     for claim, (statement, figure) in PAIRED_CLAIMS.items():
         higher = figure == "improvement_ratio_percent"
@@ -537,7 +539,7 @@ def paired_claims(records: list[dict], kf_form: str = "kf") -> dict:
             for a, b in _pairs_for(claim, labels, kf_form):
                 if a not in labels or b not in labels:
                     continue
-                first, second, _ = _paired_figure(rows, figure, a, b)
+                first, second = _paired_figure(rows, figure, a, b)
                 if not np.any(np.isfinite(first) & np.isfinite(second)):
                     continue
                 result = compare_paired(first, second, margin=margin, higher_is_better=higher)

@@ -394,12 +394,7 @@ class DelayFifo(LeafSystem):
             enable = self._enable_input.Eval(context)[0] > 0.5
         inputs = FifoInputs(sample=self._q_target_input.Eval(context), collision=collision,
                             enable=enable, q_sent=self._q_sent(context))
-        state, outputs = fifo_step(self._params, self.fifo_state(context), inputs)
-        if outputs.unplanned:
-            _logger.warning("%s: collision at t = %.3f s with no stop planned for this "
-                            "history (a tick forced without the mid-period update): hold",
-                            self.get_name() or "DelayFifo", context.get_time())
-        return state, outputs
+        return fifo_step(self._params, self.fifo_state(context), inputs)
 
     def _update_contingency(self, context, discrete_state):
         """Mid-period: :func:`~telesmooth.safety.fifo.fifo_plan_contingency` (the stop a
@@ -411,5 +406,10 @@ class DelayFifo(LeafSystem):
                 self._codec.pack(planned))
 
     def _update_queue(self, context, discrete_state):
+        state, outputs = self._tick(context)
+        if outputs.unplanned:   # logged when the tick is taken (outputs preview it between)
+            _logger.warning("%s: collision at t = %.3f s with no stop planned for this "
+                            "history (a tick forced without the mid-period update): hold",
+                            self.get_name() or "DelayFifo", context.get_time())
         discrete_state.get_mutable_vector(self._state_index).SetFromVector(
-            self._codec.pack(self._tick(context)[0]))
+            self._codec.pack(state))

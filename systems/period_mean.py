@@ -80,7 +80,6 @@ class PeriodMean(LeafSystem):
         n, m = int(num_joints), config.num_samples
         q0 = np.zeros(n) if initial_position_rad is None else check_finite_per_joint(
             "initial_position_rad", initial_position_rad, n)
-        self._num_joints, self._num_samples = n, m
         self._q_target_input = self.DeclareVectorInputPort("q_target", n)
         initial = period_mean_initial_state(m, q0)
         self._codec = VectorCodec(initial)

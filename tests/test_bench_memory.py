@@ -51,7 +51,8 @@ def test_the_stated_measure_is_the_one_read():
     assert "VmHWM" in MEMORY_MEASURE
     status = Path("/proc/self/status")
     if not status.exists():
-        return
+        import pytest
+        pytest.skip("no /proc/self/status: VmHWM is Linux's")
     def vm_hwm_mb() -> float:
         line = next(line for line in status.read_text().splitlines()
                     if line.startswith("VmHWM:"))

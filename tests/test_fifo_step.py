@@ -170,7 +170,8 @@ def test_the_contingency_is_planned_once_per_history_and_not_while_holding():
     assert fifo_plan_contingency(params, state, sent) is state
     held, _ = fifo_step(params, state, _inputs(Q0, True, q_sent=sent))
     assert fifo_plan_contingency(params, held, sent + 1.0) is held
-    assert fifo_plan_contingency(_params(), fifo_initial_state(_params(), Q0), sent) is not None
+    hold_policy = fifo_initial_state(_params(), Q0)
+    assert fifo_plan_contingency(_params(), hold_policy, sent) is hold_policy
 
 
 streams = st.lists(st.tuples(st.booleans(), st.booleans(), st.floats(-1.0, 1.0)),
