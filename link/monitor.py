@@ -94,7 +94,6 @@ class MonitorState(NamedTuple):
     count: float                 # the subscriber's message count at that telemetry
     unacknowledged: int          # packets sent in this session the robot has not accepted
     guard_mode: int              # the robot's link guard mode; −1 before telemetry
-    flagged: int                 # the robot's flagged rejections at the previous telemetry
     counts: OnboardCounts
     epoch: int                   # the epoch this ground addresses
     session: int                 # the session its commands carry
@@ -132,7 +131,7 @@ def link_status(*, telemetry_age_s: float | None, unacknowledged: int, guard_mod
 def monitor_initial_state(*, session_id: int = 0, onboard_epoch: int = 0) -> MonitorState:
     """Before any telemetry, addressing ``onboard_epoch`` with ``session_id``."""
     return MonitorState(status=LinkStatus.NO_TELEMETRY, arrival=-1.0, count=0.0,
-                        unacknowledged=0, guard_mode=-1, flagged=0, counts=OnboardCounts(),
+                        unacknowledged=0, guard_mode=-1, counts=OnboardCounts(),
                         epoch=int(onboard_epoch), session=int(session_id),
                         stream_distance=0.0, robot_session=0)
 
@@ -145,7 +144,7 @@ def monitor_step(params: MonitorParams, state: MonitorState,
     if inputs.count != state.count and inputs.count > 0:
         msg = inputs.message
         counts = OnboardCounts.of(msg)
-        rejected_recently = counts.flagged > state.flagged or bool(msg.command_rejected)
+        rejected_recently = counts.flagged > state.counts.flagged or bool(msg.command_rejected)
         epoch, session = state.epoch, state.session
         if params.session_nonce is not None and msg.onboard_epoch != epoch:
             # A robot not addressed yet (the first telemetry, or a restart): the next
@@ -154,7 +153,7 @@ def monitor_step(params: MonitorParams, state: MonitorState,
             session = next_session(msg.last_command_session_id, params.session_nonce)
         acked = msg.last_command_seq if msg.last_command_session_id == session else -1
         state = state._replace(
-            arrival=float(inputs.now), count=float(inputs.count), flagged=counts.flagged,
+            arrival=float(inputs.now), count=float(inputs.count),
             counts=counts, guard_mode=int(msg.guard_mode),
             stream_distance=float(msg.stream_distance_rad),
             robot_session=int(msg.last_command_session_id), epoch=epoch, session=session,
