@@ -85,6 +85,7 @@ __all__ = [
     "playback_guard_record",
     "ramp_start_times",
     "run_offline",
+    "set_points",
     "simulate_playback",
     "tracker_sample_times",
 ]
@@ -264,6 +265,42 @@ def ramp_start_times(logs: dict) -> np.ndarray:
     """Deployed playback: every instant the robot began a ramp towards a new command, s
     (sorted; from :data:`RAMP_START_LOG`)."""
     return np.unique(logs[RAMP_START_LOG].values[:, 0])
+
+
+def set_points(ramps, times_s, ramp_duration_s: float, *, lead_s: float = 0.0) -> np.ndarray:
+    """The robot's desired joint positions at ``times_s``, from the ramps it ran.
+
+    ``ramps`` are rows of the robot's ``command_ramp`` output, [t₀, q₀ (n), q₁ (n)], logged
+    at least once per ramp, in time order (repeats are fine): the desired position at t is
+    the ramp of
+    the latest t₀ ≤ t + ``lead_s``, q₀ + s·(q₁ − q₀) with s = clip((t + lead − t₀)/T, 0, 1)
+    (exactly q₁ at s = 1), as :func:`~telesmooth.systems.command_interpolator.\
+ramp_desired_state` gives it; before the first t₀, the first ramp's q₀.
+
+    Args:
+        ramps: (R, 1 + 2n) rows.
+        times_s: Instants, s, (M,).
+        ramp_duration_s: T, s (> 0).
+        lead_s: The robot's set-point lead, s (its plant step for a discrete plant, else 0).
+
+    Returns:
+        (M, n) desired positions, rad.
+    """
+    rows = np.asarray(ramps, dtype=float)[::-1]
+    n = (rows.shape[1] - 1) // 2
+    # The last row logged of each t₀: the robot's initial hold (t₀ = 0) is replaced by its
+    # first ramp, which a command issued at t = 0 starts with the same t₀.
+    start_times, last = np.unique(rows[:, 0], return_index=True)
+    q0 = rows[last, 1:1 + n]
+    q1 = rows[last, 1 + n:]
+    at = np.asarray(times_s, dtype=float) + lead_s
+    index = np.searchsorted(start_times, at, side="right") - 1
+    before = index < 0
+    index = np.maximum(index, 0)
+    fraction = np.clip((at - start_times[index]) / ramp_duration_s, 0.0, 1.0)[:, None]
+    out = np.where(fraction >= 1.0, q1[index], q0[index] + fraction * (q1[index] - q0[index]))
+    out[before] = q0[0]
+    return out
 
 
 def tracker_sample_times(period_s: float, duration_s: float) -> np.ndarray:

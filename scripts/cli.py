@@ -761,6 +761,11 @@ def _add_experiment_parser(subparsers) -> None:
                    + ")")
     p.add_argument("--sensitivity-shapes", default=",".join(defaults.sensitivity_shapes),
                    help="shapes of the Online-CKS sensitivity study ('none' to skip)")
+    p.add_argument("--kf-sigma0-factors",
+                   default=",".join(f"{v:g}" for v in defaults.kf_sigma0_factors),
+                   help="σ_0 multipliers of the KF's sensitivity study, run with both KF forms "
+                        "on the sensitivity shapes (comma list, or 'none'; default "
+                        + ",".join(f"{v:g}" for v in defaults.kf_sigma0_factors) + ")")
     p.add_argument("--c8-shapes", default="all",
                    help="shapes of the C8 study, each over its 7 demonstrations "
                         "('none' to skip; default all)")
@@ -819,7 +824,7 @@ _EXPERIMENT_OPTIONS = {"shapes": "--shapes", "demos": "--demos", "methods": "--m
                        "sensitivity_shapes": "--sensitivity-shapes",
                        "c8_shapes": "--c8-shapes", "offline_solver": "--solver",
                        "speeds": "--speeds", "plants": "--plants", "kf_form": "--kf-form",
-                       "chain": "--chain"}
+                       "chain": "--chain", "kf_sigma0_factors": "--kf-sigma0-factors"}
 
 
 def _number_list(text: str, option: str) -> tuple[float, ...]:
@@ -867,7 +872,11 @@ def run_experiment_command(args) -> int:
                                   sensitivity_shapes=sensitivity, c8_shapes=c8,
                                   offline_solver=args.solver,
                                   speeds=_number_list(args.speeds, "--speeds"), plants=plants,
-                                  kf_form=args.kf_form, chain=args.chain)
+                                  kf_form=args.kf_form, chain=args.chain,
+                                  kf_sigma0_factors=(
+                                      () if args.kf_sigma0_factors.strip() == "none" else
+                                      _number_list(args.kf_sigma0_factors,
+                                                   "--kf-sigma0-factors")))
     except ValueError as error:
         raise ValueError(name_fields(str(error), _EXPERIMENT_OPTIONS)) from None
     if not 0 <= args.workers <= MAX_WORKERS:

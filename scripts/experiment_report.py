@@ -146,6 +146,16 @@ def guard_table_markdown(summary: dict) -> str:
     return "\n".join(lines)
 
 
+_STUDY_TITLES = {"sigma0": "Online-CKS σ_0", "sigma_min": "Online-CKS σ_min",
+                 "rho": "Online-CKS ρ", "kf_sigma0": "KF (a posteriori) σ_0",
+                 "kf-predictor_sigma0": "KF (predictor) σ_0"}
+"""A sensitivity study's name in the report's figures."""
+
+_STUDY_AXES = {"sigma0": "σ_0 / default", "sigma_min": "σ_min / σ_0", "rho": "ρ",
+               "kf_sigma0": "σ_0 / default", "kf-predictor_sigma0": "σ_0 / default"}
+"""A sensitivity study's axis in the report's figures."""
+
+
 def _sensitivity_markdown(sensitivity: dict) -> str:
     keys = (("FD acc max/limit", "fd_acc_max_over_limit", 1.0, "ratio"),
             ("FD jerk max/limit", "fd_jerk_max_over_limit", 1.0, "ratio"),
@@ -155,7 +165,7 @@ def _sensitivity_markdown(sensitivity: dict) -> str:
              "|---|---|" + "---|" * len(keys)]
     for study, rows in sensitivity.items():
         for row in rows:
-            lines.append(f"| {study} | {row['value']:g} | " + " | ".join(
+            lines.append(f"| {_STUDY_TITLES.get(study, study)} | {row['value']:g} | " + " | ".join(
                 _cell(row[key], scale, fmt) for _, key, scale, fmt in keys) + " |")
     return "\n".join(lines)
 
@@ -250,12 +260,12 @@ def _write_figures(out: Path, summary: dict, prefix: str = "",
                     ax.set_xscale("log")
                 ax.set_ylabel(title, fontsize=8)
                 if row_index == 2:
-                    ax.set_xlabel({"sigma0": "σ_0 / default", "sigma_min": "σ_min / σ_0",
-                                   "rho": "ρ"}.get(study, study))
-            axes[0, column].set_title(study, fontsize=9)
+                    ax.set_xlabel(_STUDY_AXES.get(study, study))
+            axes[0, column].set_title(_STUDY_TITLES.get(study, study), fontsize=9)
             axes[0, column].legend(fontsize=7)
         writer.save(fig, "sensitivity.png",
-                    "Online-CKS sensitivity to σ_0, σ_min and the reduced-Q step ρ")
+                    "Sensitivity: Online-CKS to σ_0, σ_min and the reduced-Q step ρ; the KF "
+                    "(both forms) to σ_0")
 
     c8 = [r for r in summary["records"] if r["kind"] == "c8"]
     if c8:
@@ -581,7 +591,8 @@ def _cell_section(cell: str, summary: dict, claims: dict, figures, kf_form: str)
                          f"({row['worst_demo']}) | {row['above_share']} |")
         lines.append("")
     if summary["sensitivity"]:
-        lines += ["### Online-CKS sensitivity (mean (worst) over the sensitivity shapes)", "",
+        lines += ["### Sensitivity: Online-CKS's σ_0, σ_min and ρ, and the KF's σ_0 in both "
+                  "forms (mean (worst) over the sensitivity shapes)", "",
                   _sensitivity_markdown(summary["sensitivity"]), ""]
     for title, name in figures:
         lines += [f"### {title}", "", f"![{title}]({name})", ""]

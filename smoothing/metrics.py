@@ -90,6 +90,31 @@ def improvement_ratio(errors_original, errors_smoothed) -> float:
     return 100.0 * (total_original - float(np.sum(errors_smoothed))) / total_original
 
 
+MOTION_TOLERANCE_RAD = 1e-7
+"""A sample is away from a pose when some joint differs from it by more than 0.1 µrad (0.05 µm
+at half a metre: far under the tracker's 1 µm, far over the IK's round-off on a held hand)."""
+
+
+def motion_span(positions, tolerance_rad: float = MOTION_TOLERANCE_RAD) -> tuple[int, int] | None:
+    """The motion phase of a recording: (first, last) sample indices, inclusive.
+
+    ``first`` is the last sample at the start pose before the first sample away from it,
+    ``last`` the first sample at the final pose after the last sample away from it (the
+    operator holds the start pose before, and the final pose after). None when no sample
+    leaves the start pose (nothing moved).
+
+    Args:
+        positions: Samples, (N, J).
+        tolerance_rad: How far (any joint) a sample must be from a pose to be away from it.
+    """
+    q = np.asarray(positions, dtype=float)
+    leaves = np.flatnonzero(np.any(np.abs(q - q[0]) > tolerance_rad, axis=1))
+    if leaves.size == 0:
+        return None
+    away = np.flatnonzero(np.any(np.abs(q - q[-1]) > tolerance_rad, axis=1))
+    return int(max(0, leaves[0] - 1)), int(min(len(q) - 1, away[-1] + 1))
+
+
 def smoothing_metrics(
     *,
     smoothed_positions,

@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from telesmooth.studies.comparison import LEAST_DEFORMATION
-from telesmooth.studies.experiment import KF_FORMS, cell_name
+from telesmooth.studies.experiment import KF_FORMS, KF_SIGMA_STUDIES, cell_name
 
 __all__ = [
     "APPROXIMATE_LIMIT",
@@ -58,6 +58,9 @@ CLAIMS = {
 
 
 _LOWER_IS_WORSE = ("improvement_ratio_percent",)
+
+_NOT_SENSITIVITY = ("main", "reference", "carried")
+"""Studies that are not a sensitivity axis (the carried-σ runs are the main table's)."""
 
 
 def _with_p(records: list[dict]) -> list[dict]:
@@ -115,17 +118,19 @@ def summarize(records: list[dict]) -> dict:
     sensitivity: dict[str, list] = {}
     by_value: dict[tuple, list] = {}
     for record in records:
-        if record["kind"] == "run" and record["study"] not in ("main", "reference"):
+        if record["kind"] == "run" and record["study"] not in _NOT_SENSITIVITY:
             by_value.setdefault((record["study"], record["value"]), []).append(record["metrics"])
-    # The default point of every axis: Online-CKS with the scenario's settings on the study's
-    # shapes (demonstration 0).
+    # The default point of every axis: the study's method with the scenario's settings on the
+    # study's shapes (demonstration 0).
     study_shapes = {r["shape"] for r in records
-                    if r["kind"] == "run" and r["study"] not in ("main", "reference")}
-    defaults = [r for r in records if r["kind"] == "run" and r["method"] == "online-cks"
-                and r["study"] in ("main", "reference") and r["demo"] == 0
-                and r["shape"] in study_shapes]
+                    if r["kind"] == "run" and r["study"] not in _NOT_SENSITIVITY}
     for study in {key[0] for key in by_value}:
-        values = {r["online_cks"][study] for r in defaults}
+        method = study[:-len("_sigma0")] if study in KF_SIGMA_STUDIES else "online-cks"
+        defaults = [r for r in records if r["kind"] == "run" and r["label"] == method
+                    and r["study"] in ("main", "reference") and r["demo"] == 0
+                    and r["shape"] in study_shapes]
+        values = ({1.0} if study in KF_SIGMA_STUDIES else
+                  {r["online_cks"][study] for r in defaults})
         if len(defaults) == len(study_shapes) and len(values) == 1 and None not in values:
             by_value.setdefault((study, values.pop()), []).extend(r["metrics"] for r in defaults)
     for (study, value), rows in sorted(by_value.items()):

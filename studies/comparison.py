@@ -71,9 +71,11 @@ from telesmooth.arms.collision import ArmCollisionModel
 from telesmooth.arms.joint_vectors import as_per_joint
 from telesmooth.arms.self_contact import SelfContactCheck
 from telesmooth.diagrams.offline_playback import (
+    RAMP_START_LOG,
     play_path,
     playback_guard_record,
     ramp_start_times,
+    set_points,
 )
 from telesmooth.diagrams.offline_validation import validate_joint_path
 from telesmooth.diagrams.scenario import CHAINS, Scenario, make_haptic_recording
@@ -96,9 +98,11 @@ from telesmooth.smoothing.methods import (
     smooth_recording,
 )
 from telesmooth.smoothing.metrics import (
+    deformation_statistics,
     finite_differences,
     improvement_ratio,
     limit_statistics,
+    motion_span,
     smoothing_metrics,
     tracking_errors,
 )
@@ -243,6 +247,16 @@ def run_summary(metrics: dict) -> dict:
         "velocity_deformation_mean_rad_per_s": worst("velocity_deformation_rad_per_s", "mean"),
         "cartesian_deformation_mean_m": metrics["cartesian_deformation_m"]["mean"],
         "cartesian_deformation_max_m": metrics["cartesian_deformation_m"]["max"],
+        **_state_summary(metrics),
+        "position_deformation_motion_mean_rad": metrics["motion_deformation"][
+            "position_mean_rad"],
+        "cartesian_deformation_motion_mean_m": metrics["motion_deformation"]["cartesian_mean_m"],
+        "e_motion_mean_m": metrics["response_error_m"]["motion_mean"],
+        "e_settle_mean_m": metrics["response_error_m"]["settle_mean"],
+        "e_tracker_rate_mean_m": metrics["response_error_tracker_rate_m"]["mean"],
+        "e_tracker_rate_max_m": metrics["response_error_tracker_rate_m"]["max"],
+        "e_tracker_rate_motion_mean_m": metrics["response_error_tracker_rate_m"]["motion_mean"],
+        "e_tracker_rate_settle_mean_m": metrics["response_error_tracker_rate_m"]["settle_mean"],
         "e_mean_m": metrics["response_error_m"]["mean"],
         "e_max_m": metrics["response_error_m"]["max"],
         "e_sum_m": metrics["response_error_m"]["sum"],
@@ -255,6 +269,19 @@ def run_summary(metrics: dict) -> dict:
         "presim_violations": metrics["presim_violations"]["total"],
         **_guard_summary(metrics.get("guard")),
     }
+
+
+def _state_summary(metrics: dict) -> dict:
+    """The worst joint's state acceleration and jerk over their limits, and the share of
+    samples over (None for a method without states, e.g. the original)."""
+    out = {}
+    for name, key in (("acc", "state_acceleration"), ("jerk", "state_jerk")):
+        stats = metrics.get(key)
+        out[f"state_{name}_max_over_limit"] = (float(np.max(stats["max_over_limit"]))
+                                               if stats else None)
+        out[f"state_{name}_fraction_over"] = (float(np.max(stats["fraction_over_limit"]))
+                                              if stats else None)
+    return out
 
 
 def _guard_summary(guard: dict | None) -> dict:
@@ -324,6 +351,9 @@ class ComparisonSetup:
         max_acceleration, max_jerk: a_max, j_max per joint, (J,).
         operator_tool_m: FK(z_i), m, (N, 3).
         collision_model: The pre-simulator's collision model (violations are reported).
+        motion: The operator's motion phase, (first, last) sample indices inclusive
+            (:func:`~telesmooth.smoothing.metrics.motion_span`), or None if the operator
+            never moved.
     """
 
     scenario: Scenario
@@ -339,6 +369,7 @@ class ComparisonSetup:
     max_jerk: np.ndarray
     operator_tool_m: np.ndarray
     collision_model: ArmCollisionModel
+    motion: tuple[int, int] | None = None
 
     def fk(self, q) -> np.ndarray:
         """Tool positions of joint positions ``q`` (…, J), m."""
@@ -422,7 +453,7 @@ def prepare_comparison(scenario: Scenario, samples: OperatorSamples | None = Non
         q_start=q_start, num_operator_samples=num_operator_samples, duration_s=duration,
         ramp_s=ramp, max_acceleration=a_max, max_jerk=j_max,
         operator_tool_m=tool_positions(scenario, z),
-        collision_model=collision_model)
+        collision_model=collision_model, motion=motion_span(z))
 
 
 def _with_chain(scenario: Scenario, chain: str) -> Scenario:
@@ -458,7 +489,8 @@ def response_latency(operator_tool_m, t_s, tracker_t_s, tool_position_m, *,
 
 def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettings | None = None,
                base_method: str | None = None, label: str | None = None,
-               offline_solver: str = "drake", playbacks: dict | None = None) -> MethodRun:
+               offline_solver: str = "drake", playbacks: dict | None = None,
+               sigma0=None) -> MethodRun:
     """Smooths the operator's samples with one method and plays the packets through the plant.
 
     Args:
@@ -477,6 +509,8 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
             playback is deterministic, so every figure is the same as a new run's (several
             methods often send the same packets: e.g. Offline-CKS and the Kalman smoother
             when no limit binds). None: every method is simulated.
+        sigma0: Online-CKS only: the operator's stored σ to start from (σ carried over from
+            earlier operations; default the settings' σ_0).
 
     Returns:
         The run; ``metrics["improvement_ratio_percent"]`` is NaN until the caller sets it
@@ -499,7 +533,8 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
     base_method = base_method or default_method
     settings = settings or default_settings
     try:
-        result = smooth_recording(z, period, base_method, settings, joint_names=names)
+        result = smooth_recording(z, period, base_method, settings, joint_names=names,
+                                  sigma0=sigma0)
     except RuntimeError as error:
         raise RuntimeError(f"method {label!r} failed: {error}") from error
     estimate = result.positions
@@ -551,7 +586,18 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
                                                   a_max)
     metrics["fd_jerk"] = limit_statistics(finite_differences(received, period, 3), j_max)
     metrics["response_error_m"] = {"mean": float(e.mean()), "max": float(e.max()),
-                                   "sum": float(e.sum())}
+                                   "sum": float(e.sum()), **_phase_means(e, setup.motion)}
+    # The same at the tracker's rate: every tracker sample against the set-point the robot
+    # was following at that instant (its ramp), split at the response instants of the
+    # motion phase's first and last samples.
+    ramps = logs[RAMP_START_LOG if deployed else "command_ramp"].values
+    e_tracker = tracking_errors(fk(set_points(
+        ramps, tracker_t, scenario.onboard.interpolator.ramp_duration_s,
+        lead_s=scenario.onboard.time_step_s)), tool)
+    metrics["response_error_tracker_rate_m"] = {
+        "mean": float(e_tracker.mean()), "max": float(e_tracker.max()),
+        **_phase_means(e_tracker, _tracker_phases(setup.motion, response_t, ramp, tracker_t))}
+    metrics["motion_deformation"] = _motion_deformation(setup, estimate)
     metrics["operator_error_m"] = {"mean": float(e_operator.mean()),
                                    "max": float(e_operator.max())}
     metrics["improvement_ratio_percent"] = math.nan
@@ -590,6 +636,15 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
         scenario=scenario, num_joints=n, joint_names=names, initial_position_rad=q_start))
         if deployed else None)
     metrics["details"] = result.details
+    if result.sigma is not None and result.final_sigma is not None:
+        # The reduced-Q σ of an online smoother: where it started, ended and whether it never
+        # grew (claim C8).
+        start = np.broadcast_to(np.asarray(settings.sigma if sigma0 is None else sigma0,
+                                           dtype=float), (n,))
+        path = np.vstack([start[None, :], np.asarray(result.sigma, dtype=float).reshape(-1, n)])
+        metrics["sigma"] = {"start": start.tolist(), "end": np.asarray(
+            result.final_sigma, dtype=float).tolist(),
+            "monotone": bool(np.diff(path, axis=0).max(initial=0.0) <= 0.0)}
     timings = {"smooth": smoothed - started, "simulate": simulated - smoothed}
     metrics["timings_s"] = timings
     return MethodRun(
@@ -598,6 +653,49 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
         q_link=tracker.q_link, q_motor=tracker.q_motor, response_error_m=e,
         operator_error_m=e_operator, metrics=metrics, timings_s=timings,
         playback_reused=reused, self_contact=self_contact)
+
+
+def _phase_means(errors: np.ndarray, phases) -> dict:
+    """Mean of ``errors`` over the motion phase and over the settle phase after it.
+
+    ``phases`` is (first, last) inclusive sample indices of the motion (the settle phase is
+    every later sample), or a pair of boolean masks (motion, settle), or None (no motion:
+    NaN for both).
+    """
+    if phases is None:
+        return {"motion_mean": math.nan, "settle_mean": math.nan}
+    first, last = phases
+    if isinstance(first, np.ndarray):
+        motion, settle = errors[first], errors[last]
+    else:
+        motion, settle = errors[first:last + 1], errors[last + 1:]
+    return {"motion_mean": float(motion.mean()) if motion.size else math.nan,
+            "settle_mean": float(settle.mean()) if settle.size else math.nan}
+
+
+def _tracker_phases(motion, response_t: np.ndarray, ramp_s: float, tracker_t: np.ndarray):
+    """(motion, settle) masks over the tracker's samples: the motion phase from when the
+    robot began towards the motion's first sample (its response instant less the ramp) to
+    the response instant of its last; the settle phase after that. None without motion."""
+    if motion is None:
+        return None
+    first, last = motion
+    begin, end = response_t[first] - ramp_s, response_t[last]
+    return (tracker_t >= begin) & (tracker_t <= end), tracker_t > end
+
+
+def _motion_deformation(setup: ComparisonSetup, estimate: np.ndarray) -> dict:
+    """The deformations over the operator's motion phase only (the holds before and after
+    it add zeros to every method's mean): worst joint's mean position deformation, rad, and
+    the mean Cartesian deformation, m; NaN without motion."""
+    if setup.motion is None:
+        return {"position_mean_rad": math.nan, "cartesian_mean_m": math.nan}
+    first, last = setup.motion
+    part = slice(first, last + 1)
+    position = deformation_statistics(estimate[part], setup.q_original[part])
+    cartesian = np.linalg.norm(setup.fk(estimate[part]) - setup.operator_tool_m[part], axis=-1)
+    return {"position_mean_rad": float(np.max(position["mean"])),
+            "cartesian_mean_m": float(cartesian.mean())}
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -6,7 +6,11 @@ operator speed):
 
     LASA shape × demonstration × method      (the main table; every method of
                                               :data:`~telesmooth.smoothing.methods.METHODS`)
+    LASA shape × demonstration × Online-CKS with σ carried over (study ``carried``: each
+                                              demonstration starts from the σ the shape's
+                                              earlier ones, in order, ended with)
     sensitivity shapes × Online-CKS variant  (σ_0, σ_min and the reduced-Q step ρ, one at a time)
+    sensitivity shapes × KF form × σ_0 factor (studies ``kf_sigma0``, ``kf-predictor_sigma0``)
 
 plus one core-only task per shape for claim C8 (Online-CKS over the shape's demonstrations in
 order, each operation starting from the σ the previous one ended with, against each starting
@@ -73,9 +77,12 @@ from telesmooth.studies.comparison import (
 )
 
 __all__ = [
+    "CARRIED_LABEL",
     "KF_FORMS",
+    "KF_SIGMA_STUDIES",
     "ExperimentConfig",
     "ExperimentTask",
+    "carried_sigma0",
     "cell_name",
     "experiment_scenario",
     "make_tasks",
@@ -110,6 +117,11 @@ class ExperimentConfig:
         sigma_min_ratios: σ_min / σ_0 values of the study (the default is 2.5e-4).
         rhos: Multiplicative reduced-Q steps ρ of the study (the default is 0.8).
         c8_shapes: Shapes of the C8 study (all seven demonstrations of each, in order).
+        kf_sigma0_factors: σ_0 multipliers of the KF's sensitivity study, run with both KF
+            forms (:data:`KF_FORMS`) on the sensitivity shapes.
+        carried_sigma: Also run Online-CKS on every demonstration of the main table with σ
+            carried over from the shape's earlier demonstrations (study ``carried``), as the
+            paper keeps σ per operator; the main table's Online-CKS starts from σ_0.
         offline_solver: Solver of the Offline-CKS methods, "drake" (the MathematicalProgram)
             or "banded-ip" (the banded interior point).
         speeds: Operator speeds, multiples of the demonstrator's hand speed (> 0): the
@@ -134,6 +146,8 @@ class ExperimentConfig:
     sigma_min_ratios: tuple[float, ...] = (2.5e-6, 2.5e-2, 0.25)
     rhos: tuple[float, ...] = (0.5, 0.95)
     c8_shapes: tuple[str, ...] = LASA_SHAPES
+    kf_sigma0_factors: tuple[float, ...] = (0.01, 0.1, 10.0, 100.0)
+    carried_sigma: bool = True
     offline_solver: str = "drake"
     speeds: tuple[float, ...] = (1.0,)
     plants: tuple[str, ...] = ("lab",)
@@ -183,7 +197,8 @@ class ExperimentConfig:
                              "a positive, finite step")
         if not (math.isfinite(self.settle_s) and self.settle_s > 0):
             raise ValueError(f"settle_s = {self.settle_s!r} must be positive and finite")
-        for field, lo, hi in (("sigma0_factors", 0, math.inf), ("sigma_min_ratios", 0, 1),
+        for field, lo, hi in (("sigma0_factors", 0, math.inf),
+                              ("kf_sigma0_factors", 0, math.inf), ("sigma_min_ratios", 0, 1),
                               ("rhos", 0, 1)):
             for value in getattr(self, field):
                 if not (lo < value < hi or (field == "sigma_min_ratios" and value == 1)):
@@ -273,6 +288,10 @@ def make_tasks(config: ExperimentConfig) -> list[ExperimentTask]:
                     for method in methods:
                         add(kind="run", shape=shape, demo=demo, method=method, label=method,
                             seed=_seed(shape, demo), **cell)
+                    if config.carried_sigma and "online-cks" in methods:
+                        add(kind="run", shape=shape, demo=demo, method="online-cks",
+                            label=CARRIED_LABEL, study="carried", seed=_seed(shape, demo),
+                            **cell)
             main_cells = {(t.shape, t.demo, t.method) for t in tasks
                           if t.study == "main" and (t.plant, t.speed) == (plant, speed)}
             for shape in config.sensitivity_shapes:
@@ -286,6 +305,14 @@ def make_tasks(config: ExperimentConfig) -> list[ExperimentTask]:
                     add(kind="run", shape=shape, demo=0, method="online-cks",
                         label=f"online-cks {study}={value:g}", study=study,
                         value=float(value), seed=_seed(shape, 0), **cell)
+                for form in KF_FORMS if config.kf_sigma0_factors else ():
+                    if (shape, 0, form) not in main_cells:
+                        add(kind="run", shape=shape, demo=0, method=form, label=form,
+                            study="reference", seed=_seed(shape, 0), **cell)
+                    for value in config.kf_sigma0_factors:
+                        add(kind="run", shape=shape, demo=0, method=form,
+                            label=f"{form} sigma0={value:g}", study=f"{form}_sigma0",
+                            value=float(value), seed=_seed(shape, 0), **cell)
             for shape in config.c8_shapes:
                 add(kind="c8", shape=shape, demo=-1, method="online-cks",
                     label="online-cks C8", study="c8", seed=0, **cell)
@@ -294,11 +321,11 @@ def make_tasks(config: ExperimentConfig) -> list[ExperimentTask]:
 
 def _settings(setup, task: ExperimentTask, offline_solver: str = "drake"):
     base_method, settings = method_settings(setup.scenario, task.method, offline_solver)
-    if task.study in ("main", "reference"):
+    if task.study in ("main", "reference", "carried"):
         return base_method, settings
     config = settings.reduced_q
     sigma0 = np.asarray(settings.sigma, dtype=float)
-    if task.study == "sigma0":
+    if task.study == "sigma0" or task.study in KF_SIGMA_STUDIES:
         return base_method, dataclasses.replace(settings, sigma=sigma0 * task.value)
     if task.study == "sigma_min":
         # σ_min as a ratio of σ_0 (one value for all joints: the smallest σ_0 sets it).
@@ -310,7 +337,14 @@ def _settings(setup, task: ExperimentTask, offline_solver: str = "drake"):
     raise ValueError(f"unknown study {task.study!r}")
 
 
+CARRIED_LABEL = "online-cks carried"
+"""The label of Online-CKS with σ carried over (study ``carried``)."""
+
+KF_SIGMA_STUDIES = tuple(f"{form}_sigma0" for form in KF_FORMS)
+"""The KF's σ_0 sensitivity studies, one per form."""
+
 _SAMPLES_CACHE: dict = {}
+_CARRIED_CACHE: dict = {}
 
 
 def _samples(scenario: Scenario) -> OperatorSamples:
@@ -321,6 +355,29 @@ def _samples(scenario: Scenario) -> OperatorSamples:
             _SAMPLES_CACHE.clear()
         _SAMPLES_CACHE[key] = operator_samples(scenario)
     return _SAMPLES_CACHE[key]
+
+
+def carried_sigma0(base: Scenario, config: ExperimentConfig, task: ExperimentTask):
+    """The σ Online-CKS starts ``task``'s demonstration with when σ is carried over: the σ
+    the shape's previous demonstration ended with, itself started from the σ carried to it,
+    from σ_0 at demonstration 0 (None: start from the settings' σ_0). Only the smoother's
+    core runs for the earlier demonstrations (kept per worker process)."""
+    sigma = None
+    for demo in range(task.demo):
+        scenario = experiment_scenario(base, config, task.shape, demo, plant=task.plant,
+                                       speed=task.speed)
+        key = repr(scenario)
+        if key not in _CARRIED_CACHE:
+            samples = _samples(scenario)
+            base_method, settings = method_settings(scenario, "online-cks")
+            result = smooth_recording(samples.q, scenario.uplink.period_s, base_method,
+                                      settings, joint_names=scenario.arm_description.joint_names,
+                                      sigma0=sigma)
+            if len(_CARRIED_CACHE) > 64:
+                _CARRIED_CACHE.clear()
+            _CARRIED_CACHE[key] = result.final_sigma
+        sigma = _CARRIED_CACHE[key]
+    return sigma
 
 
 def _c8_record(base: Scenario, config: ExperimentConfig, task: ExperimentTask) -> dict:
@@ -432,9 +489,10 @@ def _task_record(task: ExperimentTask, base: Scenario, config: ExperimentConfig,
     else:
         scenario = setup.scenario
         base_method, settings = _settings(setup, task, config.offline_solver)
+        carried = carried_sigma0(base, config, task) if task.study == "carried" else None
         try:
             run = run_method(setup, task.method, settings=settings, base_method=base_method,
-                             label=task.label, playbacks=playbacks)
+                             label=task.label, playbacks=playbacks, sigma0=carried)
         except (RuntimeError, ValueError, ArithmeticError) as error:
             # A method that fails on one demonstration is a finding, reported with the
             # others; it does not end the grid.
@@ -465,7 +523,9 @@ def _task_record(task: ExperimentTask, base: Scenario, config: ExperimentConfig,
             record["online_cks"] = {
                 "sigma0": float(np.max(sigma0 / default_sigma0)),
                 "sigma_min": sigma_min / float(np.min(sigma0)),
-                "rho": reduced_q.rho if reduced_q.step_rule == "multiplicative" else None}
+                "rho": reduced_q.rho if reduced_q.step_rule == "multiplicative" else None,
+                **{f"sigma_{key}": value
+                   for key, value in run.metrics.get("sigma", {}).items()}}
     record["wall_s"] = time.perf_counter() - started
     return record
 

@@ -16,10 +16,12 @@ from telesmooth.scripts.cli import main
 from telesmooth.studies.claims import check_claims, summarize, summarize_cells
 from telesmooth.studies.comparison import response_latency
 from telesmooth.studies.experiment import (
+    CARRIED_LABEL,
     ExperimentConfig,
     experiment_scenario,
     make_tasks,
     run_experiment,
+    task_groups,
 )
 
 # Short runs: short holds; the experiment's speed 2.5 (2.5× the pen's speed) is this time scale.
@@ -64,21 +66,32 @@ def test_the_grid_has_every_cell_once_in_report_order():
     config = ExperimentConfig(shapes=("Angle", "Worm"), demos=(0, 3),
                               methods=("kf", "online-cks"), sensitivity_shapes=("Angle", "Leaf_1"),
                               sigma0_factors=(0.1,), sigma_min_ratios=(0.01,), rhos=(0.5, 0.9),
-                              c8_shapes=("Worm",))
+                              c8_shapes=("Worm",), kf_sigma0_factors=(10.0,))
     tasks = make_tasks(config)
     assert [t.index for t in tasks] == list(range(len(tasks)))
     main_cells = [(t.shape, t.demo, t.method) for t in tasks if t.study == "main"]
     assert main_cells == [(s, d, m) for s in ("Angle", "Worm") for d in (0, 3)
                           for m in ("original", "kf", "online-cks")]
+    # Online-CKS with σ carried over, beside every demonstration's fresh one, in its group.
+    carried = [(t.shape, t.demo, t.method, t.label) for t in tasks if t.study == "carried"]
+    assert carried == [(s, d, "online-cks", CARRIED_LABEL) for s in ("Angle", "Worm")
+                       for d in (0, 3)]
+    for group in task_groups(tasks):
+        if any(t.study == "carried" for t in group):
+            assert any(t.study == "main" and t.method == "online-cks" for t in group)
     study = [(t.shape, t.study, t.value) for t in tasks
-             if t.study not in ("main", "reference", "c8")]
+             if t.study not in ("main", "reference", "c8", "carried")]
     assert study == [(s, k, v) for s in ("Angle", "Leaf_1")
                      for k, v in (("sigma0", 0.1), ("sigma_min", 0.01), ("rho", 0.5),
-                                  ("rho", 0.9))]
-    # Leaf_1 demo 0 is not in the main table, so its original (P's reference) and default
-    # Online-CKS runs are added.
+                                  ("rho", 0.9), ("kf_sigma0", 10.0),
+                                  ("kf-predictor_sigma0", 10.0))]
+    assert {t.method for t in tasks if t.study.endswith("_sigma0") and t.study != "sigma0"} \
+        == {"kf", "kf-predictor"}
+    # Leaf_1 demo 0 is not in the main table, so its original (P's reference) and the
+    # default runs of each study's method are added; Angle lacks only kf-predictor.
     assert [(t.shape, t.method) for t in tasks if t.study == "reference"] == [
-        ("Leaf_1", "original"), ("Leaf_1", "online-cks")]
+        ("Angle", "kf-predictor"), ("Leaf_1", "original"), ("Leaf_1", "online-cks"),
+        ("Leaf_1", "kf"), ("Leaf_1", "kf-predictor")]
     assert [(t.kind, t.shape) for t in tasks if t.kind == "c8"] == [("c8", "Worm")]
     # The seed is a function of the demonstration only.
     seeds = {(t.shape, t.demo): t.seed for t in tasks if t.kind == "run"}
@@ -358,9 +371,13 @@ def test_cli_writes_the_report_and_names_bad_shapes(tmp_path, capsys):
     # The plant's modes about the start pose of the demonstration.
     assert 2.0 < cell["plant_modes"]["lowest_hz_min"] < 3.5
     sensitivity = cell["sensitivity"]
-    assert set(sensitivity) == {"sigma0", "sigma_min", "rho"}
-    # Each axis includes the scenario's default point (the default Online-CKS run).
+    assert set(sensitivity) == {"sigma0", "sigma_min", "rho", "kf_sigma0",
+                                "kf-predictor_sigma0"}
+    # Each axis includes the scenario's default point (the default run of its method).
     assert 1.0 in [row["value"] for row in sensitivity["sigma0"]]
+    for form in ("kf", "kf-predictor"):
+        assert [row["value"] for row in sensitivity[f"{form}_sigma0"]] == [
+            0.01, 0.1, 1.0, 10.0, 100.0]
     assert 0.8 in [row["value"] for row in sensitivity["rho"]]
     assert 2.5e-4 in [round(row["value"], 12) for row in sensitivity["sigma_min"]]
     text = (out / "report.md").read_text()
@@ -590,7 +607,8 @@ def test_tasks_are_grouped_by_demonstration():
     # Per speed: demonstration 0 (main table + sensitivity study), demonstration 1, C8.
     assert len(groups) == 2 * 3
     demo0 = next(g for g in groups if (g[0].speed, g[0].demo, g[0].kind) == (1.0, 0, "run"))
-    assert {t.study for t in demo0} == {"main", "reference", "sigma0", "sigma_min", "rho"}
+    assert {t.study for t in demo0} == {"main", "reference", "sigma0", "sigma_min", "rho",
+                                        "kf_sigma0", "kf-predictor_sigma0"}
 
 
 def test_a_group_gives_each_task_the_record_it_gets_alone_and_reuses_equal_packets():
@@ -608,9 +626,9 @@ def test_a_group_gives_each_task_the_record_it_gets_alone_and_reuses_equal_packe
     reused = {r["label"] for r in grouped if r["playback_reused"]}
     # Offline-CKS is the Kalman smoother when no limit binds; BMFLS sends what one of the
     # online smoothers sends (bit for bit: the same arithmetic on the same samples, which this
-    # scenario's loose limits never alter). Their figures are those of their own simulations
-    # (above).
-    assert reused == {"offline-cks", "bmfls"}
+    # scenario's loose limits never alter); Online-CKS with σ carried over is the fresh one on
+    # a shape's first demonstration. Their figures are those of their own simulations (above).
+    assert reused == {"offline-cks", "bmfls", "online-cks carried"}
     # These demonstrations stay far from self-contact: every plant run was certified so and
     # ran without collision geometry (the figures above are the same as alone, where it did
     # too; tests/test_self_contact.py compares such a run with the run with geometry).
