@@ -34,19 +34,17 @@ from telesmooth.diagrams.scenario import describe_chain
 from telesmooth.scripts.figures import FigureWriter
 from telesmooth.scripts.formatting import limit_ratio
 from telesmooth.scripts.formatting import log as _log
+from telesmooth.scripts.verdict_report import paper_verdicts_markdown, variant_figures_markdown
 from telesmooth.studies.claims import (
     APPROXIMATE_LIMIT,
     C1_QUANTILE,
-    DEFORMATION_MARGIN_M,
-    P_MARGIN_PERCENT,
     PAIRED_SHARE,
     check_claims,
-    paired_claims,
+    paper_verdicts,
     summarize_cells,
 )
 from telesmooth.studies.comparison import LEAST_DEFORMATION
 from telesmooth.studies.experiment import (
-    KF_FORMS,
     ExperimentConfig,
     experiment_scenario,
     make_tasks,
@@ -188,7 +186,7 @@ def _write_figures(out: Path, summary: dict, prefix: str = "",
     runs = [r for r in summary["records"] if r["kind"] == "run" and r["study"] == "main"]
 
     def per_demo(label, key):
-        return [r["metrics"][key] for r in runs if r["label"] == label]
+        return [r["metrics"].get(key) for r in runs if r["label"] == label]
 
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.2), sharey=True)
     for ax, key, title in ((axes[0], "fd_acc_max_over_limit", "worst |FD acc| / a_max"),
@@ -240,6 +238,29 @@ def _write_figures(out: Path, summary: dict, prefix: str = "",
     ax.set_xlabel("P [%] (mean over demonstrations)")
     ax.legend(fontsize=7)
     writer.save(fig, "improvement.png", "Improvement ratio P per method")
+
+    # P over the demonstrations, per method, as e is read at the command instants and at
+    # the tracker's 100 Hz (the box: quartiles; whiskers: 5th-95th percentile; dots beyond).
+    smoothers = [label for label in labels if label != "original"]
+    if smoothers:
+        fig, axes = plt.subplots(1, 2, figsize=(12, 0.45 * len(smoothers) + 1.8), sharey=True)
+        for ax, key, title in ((axes[0], "improvement_ratio_percent",
+                                "P [%], e at the command instants"),
+                               (axes[1], "p_tracker_rate_percent",
+                                "P [%], e at 100 Hz against the set-point")):
+            data = [[v for v in per_demo(label, key) if v is not None and np.isfinite(v)]
+                    for label in smoothers]
+            if not any(data):
+                ax.set_visible(False)
+                continue
+            ax.boxplot([d if d else [np.nan] for d in data], orientation="horizontal",
+                       whis=(5, 95), flierprops={"markersize": 3})
+            ax.set_yticks(range(1, len(smoothers) + 1))
+            ax.set_yticklabels(smoothers, fontsize=8)
+            ax.axvline(0.0, color="k", lw=0.8)
+            ax.set_xlabel(title)
+        axes[0].invert_yaxis()
+        writer.save(fig, "p_boxplot.png", "P per method over the demonstrations")
 
     sensitivity = summary["sensitivity"]
     if sensitivity:
@@ -478,60 +499,6 @@ def verdict_table_markdown(claims_by_cell: dict) -> str:
     return "\n".join(lines)
 
 
-def paired_claims_markdown(paired: dict) -> str:
-    """The claims judged pair by pair (:func:`~telesmooth.studies.claims.paired_claims`): a
-    verdict table (claims × cells, and over cells), then every pair with its median paired
-    difference, interval, Wilcoxon p and verdict."""
-    cells = list(dict.fromkeys(cell for claim in paired.values() for cell in claim["cells"]))
-    lines = ["| claim | " + " | ".join(cells) + " | over cells |",
-             "|---|" + "---|" * (len(cells) + 1)]
-    for name, claim in paired.items():
-        lines.append(f"| {name} | " + " | ".join(
-            claim["cells"][cell]["verdict"] if cell in claim["cells"] else "—" for cell in cells)
-            + f" | {claim['verdict']} |")
-    lines += ["", "| claim | cell | A against B | figure | pairs | median A − B [95 % "
-              "interval] | Wilcoxon p | verdict for A |", "|---|---|---|---|---|---|---|---|"]
-    for name, claim in paired.items():
-        scale, unit = ((1.0, "points") if claim["figure"] == "improvement_ratio_percent"
-                       else (1e3, "mm"))
-        for cell, result in claim["cells"].items():
-            for pair in result["pairs"]:
-                low, high = (scale * v for v in pair["interval"])
-                lines.append(
-                    f"| {name} | {cell} | {pair['a']} against {pair['b']} | "
-                    f"{'P' if scale == 1.0 else 'E_def Cartesian'} | {pair['n']} | "
-                    f"{scale * pair['median_difference']:.4g} [{low:.4g}, {high:.4g}] {unit} | "
-                    f"{pair['p_value']:.2g} | {pair['verdict']} |")
-    lines += ["", f"Pairs over the demonstrations both methods ran. A difference smaller than "
-              f"the practical-equivalence margin ({P_MARGIN_PERCENT:g} percentage point of P; "
-              f"{DEFORMATION_MARGIN_M * 1e3:g} mm, the tracker's accuracy, of a deformation) is "
-              "a tie; *better* needs the median's distribution-free 95 % interval beyond 0 "
-              "and the median at least the margin; *inconclusive* when the interval reaches "
-              "past the margin and includes 0, or with fewer than 6 pairs (no 95 % "
-              "interval). In a cell a claim is *better* when every pair it names is (C4: "
-              "Offline-CKS better than or tied with each, better than one)."]
-    for name, claim in paired.items():
-        lines.append(f"- {name}: {claim['statement']}.")
-    return "\n".join(lines)
-
-
-def kf_robustness_markdown(claims_by_form: dict) -> str:
-    """Claims × cells under each KF form (:data:`~telesmooth.studies.experiment.KF_FORMS`):
-    the verdict when both forms give it, else "depends on" naming each form's verdict."""
-    from telesmooth.studies.verdicts import robustness
-
-    forms = list(claims_by_form)
-    first = claims_by_form[forms[0]]
-    cells = list(first)
-    names = list(next(iter(first.values()))) if cells else []
-    lines = ["| claim | " + " | ".join(cells) + " |", "|---|" + "---|" * len(cells)]
-    for name in names:
-        lines.append(f"| {name} | " + " | ".join(
-            robustness({form: claims_by_form[form][cell][name]["verdict"] for form in forms})
-            for cell in cells) + " |")
-    return "\n".join(lines)
-
-
 def _slug(cell: str) -> str:
     return "".join(ch if ch.isalnum() else "_" for ch in cell).strip("_") + "_"
 
@@ -560,7 +527,14 @@ def _cell_section(cell: str, summary: dict, claims: dict, figures, kf_form: str)
                   f"ratio {plant['lowest_zeta_min']:.3f}-{plant['lowest_zeta_max']:.3f} "
                   f"(over the {plant['n']} demonstrations).", ""]
     lines += ["### Main table: mean (worst case) over the demonstrations", "",
-              main_table_markdown(summary), ""]
+              main_table_markdown(summary), "",
+              "### The figures of each reading: mean (worst case) over the demonstrations", "",
+              "e at the command instants (the main table's) and at the tracker's 100 Hz "
+              "against the set-point the robot was following; over the whole run, the "
+              "operator's motion phase and the settle phase after it; P from each; E_def and "
+              "the joint deformation over the motion phase; the states' acceleration and jerk "
+              "over their limits with the share of samples over (methods with states).", "",
+              variant_figures_markdown(summary, summary.get("carried")), ""]
     guard = guard_table_markdown(summary)
     if guard:
         lines += ["### What the onboard link guard did: mean (worst case) over the "
@@ -646,7 +620,7 @@ def _chain_lines(config: ExperimentConfig, meta: dict) -> list[str]:
 
 
 def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figures, meta,
-                 paired: dict | None = None, by_kf_form: dict | None = None) -> str:
+                 verdicts: dict | None = None) -> str:
     lines = [
         "# telesmooth experiment: the paper's claims on real human demonstrations",
         "",
@@ -691,7 +665,15 @@ def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figure
         "track with the operator's intent, minus the original's. Worst case: largest "
         "(smallest for P).",
         "",
-        "## Verdicts per cell",
+    ]
+    if verdicts:
+        lines += paper_verdicts_markdown(verdicts)
+    lines += [
+        "## The earlier rules' verdicts (kept for comparison)",
+        "",
+        "Each cell judged on means over the demonstrations with strict comparisons (the "
+        "rules the verdicts above replace); each claim's rule and figures are in its cell's "
+        "section.",
         "",
         verdict_table_markdown(claims),
         "",
@@ -701,16 +683,6 @@ def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figure
         "as found.",
         "",
     ]
-    if by_kf_form:
-        lines += ["## The verdicts under either KF form", "",
-                  "The paper does not say which form its KF comparator took: every claim judged "
-                  "with the a-posteriori filter (`kf`) and with its one-step predictor "
-                  "(`kf-predictor`); a verdict that differs is written \"depends on\" with "
-                  "each form's.", "", kf_robustness_markdown(by_kf_form), ""]
-    if paired:
-        lines += ["## Paired verdicts: C4, C5 and C6 as the paper states them", "",
-                  "The same records judged pair by pair over the demonstrations (the rules "
-                  "above stay, for comparison).", "", paired_claims_markdown(paired), ""]
     for cell, summary in summaries.items():
         lines += _cell_section(cell, summary, claims[cell], figures[cell], config.kf_form)
     return "\n".join(lines)
@@ -956,11 +928,7 @@ def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, 
     summaries = summarize_cells(records)
     claims = {cell: check_claims(summary, config.kf_form)
               for cell, summary in summaries.items()}
-    paired = paired_claims(records, config.kf_form)
-    by_kf_form = {form: (claims if form == config.kf_form else
-                         {cell: check_claims(summary, form)
-                          for cell, summary in summaries.items()})
-                  for form in KF_FORMS}
+    verdicts = paper_verdicts(records, config.kf_form)
     mapping = base.haptic.lasa_mapping
     chains: dict[str, int] = {}
     for record in records:
@@ -980,7 +948,7 @@ def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, 
     data = {"config": dataclasses.asdict(config), "meta": meta,
             "cells": {cell: {k: v for k, v in summary.items() if k != "records"}
                       for cell, summary in summaries.items()},
-            "claims": claims, "claims_by_kf_form": by_kf_form, "paired_claims": paired,
+            "claims": claims, "paper_verdicts": verdicts,
             "records": [r for s in summaries.values() for r in s["records"]]}
     write_text(out / "experiment.json", json.dumps(data, indent=1, default=float) + "\n")
     write_text(out / "table.md", "\n\n".join(
@@ -990,7 +958,7 @@ def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, 
                                     else "", suffix=f" ({cell})" if len(summaries) > 1 else "")
                for cell, summary in summaries.items()}
     report = out / "report.md"
-    text = _report_text(config, summaries, claims, figures, meta, paired, by_kf_form)
+    text = _report_text(config, summaries, claims, figures, meta, verdicts)
     if missing:
         text = (f"> **Incomplete:** {missing} of {len(tasks)} tasks are not in this folder "
                 "yet (a shard, or an interrupted run: rerun with the same --out to finish, "

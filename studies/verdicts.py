@@ -146,10 +146,11 @@ def cell_verdict(verdicts: dict, wanted: str = "better") -> str:
         return "tie"
     if len(unclear) == len(verdicts):
         return "inconclusive"
-    aside = ("; inconclusive in " + ", ".join(str(cell) for cell in unclear)) if unclear else ""
+    # Cells are joined by " and " (their names may hold commas: "lab, 1×").
+    aside = ("; inconclusive in " + " and ".join(str(cell) for cell in unclear)) if unclear else ""
     if not holding:
         return "does not hold" + aside
-    return "partly (" + ", ".join(str(cell) for cell in holding) + aside + ")"
+    return "partly (" + " and ".join(str(cell) for cell in holding) + aside + ")"
 
 
 def robustness(verdicts_by_variant: dict) -> str:

@@ -110,7 +110,7 @@ def test_claims_over_cells_and_variants():
     assert cell_verdict({"lab 1x": "tie", "lab 4x": "tie"}) == "tie"
     assert cell_verdict({"lab 1x": "tie", "lab 4x": "worse"}) == "does not hold"
     assert cell_verdict({"lab 1x": "better", "lab 4x": "tie",
-                         "lightweight 4x": "better"}) == "partly (lab 1x, lightweight 4x)"
+                         "lightweight 4x": "better"}) == "partly (lab 1x and lightweight 4x)"
     assert cell_verdict({"a": "inconclusive", "b": "inconclusive"}) == "inconclusive"
     assert cell_verdict({"a": "not", "b": "inconclusive"}) == (
         "does not hold; inconclusive in b")
