@@ -73,7 +73,7 @@ def _rules() -> list[str]:
         f"{JOINT_MARGIN_RAD * 1e6:g} µrad (and µrad/s) of a joint deformation (1 µm at a "
         f"metre of reach); {RANK_MARGIN:g} of a mean rank (C7); {C8_MARGIN:g} × j_max of the "
         "worst FD jerk (C8). In a cell a claim *holds* when every pair it names is better "
-        "(C4's \"most\": Offline-CKS better than or tied with each other smoother), is a "
+        "(for C4's \"most\", Offline-CKS better than or tied with each other smoother), is a "
         "*tie* when every pair is, *does not hold* when a pair is worse, *partly* otherwise. "
         "Over cells: *holds* in every cell, *partly (cells)* naming where it holds. A claim "
         "whose figures a reading lacks is *not tested* under it (not counted).", "",

@@ -541,12 +541,13 @@ PAPER_CLAIMS = {
            "the effect of Offline-CKS is the most obvious\" (Fig. 11): every smoother's e "
            "below the original's, and Offline-CKS's P above or tied with every other's"),
     "C5": ("\"only the constrained smoothing methods can limit the acceleration and jerk … "
-           "they have a better performance than the others\": P of Offline-CKS above "
+           "they have a better performance than the others\" (Results): P of Offline-CKS above "
            "Offline-KS's, of Online-CKS above BMFLS's"),
     "C6": ("\"the deformation of Offline-CKS is smaller than Online-CKS\" (Table 2): "
            "Offline-CKS's E_def below Online-CKS's"),
-    "C7": ("\"Standard Kalman filter … exhibits the worst performance\": the KF's mean rank "
-           "over FD acceleration, FD jerk, E_def and e worse than every other smoother's"),
+    "C7": ("\"Standard Kalman filter … exhibits the worst performance\" (Results): the "
+           "KF's mean rank over FD acceleration, FD jerk, E_def and e worse than every other "
+           "smoother's"),
     "C8": ("reduced-Q: σ never increases, and a later operation with σ carried over is "
            "smoother than the same operation from σ_0 (worst FD jerk over the limit)"),
 }

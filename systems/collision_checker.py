@@ -6,7 +6,9 @@ the workspace and the arm itself at the IK rate (100 Hz) and reports a collision
 FIFO reads the flag only at 4 Hz, so the flag it reads is latched: any collision among the
 samples of the last ``latch_s`` seconds, long enough that a collision between two 4 Hz ticks is
 never missed. On that flag the FIFO refills its queue with the command already sent and the
-robot holds (docs/method.md §5.2).
+robot holds (docs/method.md §5.2). A thin Drake system around the pure step
+:func:`telesmooth.safety.collision_latch.latch_step`, whose state lives in the Context as one
+vector.
 """
 
 from __future__ import annotations
@@ -15,12 +17,18 @@ import dataclasses
 import math
 from collections.abc import Sequence
 
-import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from telesmooth.arms.collision import ArmCollisionModel
 from telesmooth.arms.description import ArmDescription
 from telesmooth.arms.workspace import Workspace
+from telesmooth.safety.collision_latch import (
+    LatchState,
+    collision_detected,
+    latch_initial_state,
+    latch_step,
+)
+from telesmooth.systems.codec_state import CodecState
 from telesmooth.systems.timing import check_period
 
 __all__ = ["CollisionChecker", "CollisionCheckerConfig"]
@@ -106,9 +114,10 @@ class CollisionChecker(LeafSystem):
     - ``collision_detected``: 1.0 if any of the last N samples collided, else 0.0; (1,).
       This is what the 4 Hz FIFO reads.
 
-    State (discrete): d (1), the ring of the last N flags f = [c_{k−N+1}, …, c_k], oldest
-    first (N = ``config.latch_samples`` = ceil(latch_s / period_s), 26 by default), and the
-    target q_d whose distance d is (NaN before the first and after an invalid target).
+    State (one discrete vector, :class:`~telesmooth.safety.collision_latch.LatchState`): d,
+    the ring of the last N flags f = [c_{k−N+1}, …, c_k], oldest first (N =
+    ``config.latch_samples`` = ceil(latch_s / period_s), 26 by default), and the target q_d
+    whose distance d is (NaN before the first and after an invalid target).
 
     Update at t_k = k·period_s (offset 0), with q = q_target(t_k), h = distance_horizon_m,
     m = safety_margin_m:
@@ -172,22 +181,17 @@ class CollisionChecker(LeafSystem):
         self._latch_samples = config.latch_samples
 
         self._q_target_input = self.DeclareVectorInputPort("q_target", n)
-        self._distance_state = self.DeclareDiscreteState(
-            np.array([config.distance_horizon_m]))
-        self._flags_state = self.DeclareDiscreteState(np.zeros(self._latch_samples))
-        # The target whose distance is in _distance_state (NaN: none), so that a target that
-        # did not change since the last sample is not queried again.
-        self._checked_q_state = self.DeclareDiscreteState(np.full(n, np.nan))
+        self._state = CodecState(self, latch_initial_state(
+            n, self._latch_samples, config.distance_horizon_m))
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update)
-
-        self._min_distance_output = self.DeclareStateOutputPort(
-            "min_distance", self._distance_state)
-        flags_ticket = {self.discrete_state_ticket(self._flags_state)}
-        self._in_collision_output = self.DeclareVectorOutputPort(
-            "in_collision", 1, self._calc_in_collision, prerequisites_of_calc=flags_ticket)
+        flags = self._state.codec.field_slice("flags")
+        self._min_distance_output = self._state.output("min_distance", "distance_m")
+        self._in_collision_output = self._state.output(
+            "in_collision", slice(flags.stop - 1, flags.stop))
         self._collision_detected_output = self.DeclareVectorOutputPort(
-            "collision_detected", 1, self._calc_collision_detected,
-            prerequisites_of_calc=flags_ticket)
+            "collision_detected", 1,
+            lambda context, out: out.SetAtIndex(0, collision_detected(self.latch_state(context))),
+            {self.xd_ticket()})
 
     # -- accessors ------------------------------------------------------------------------
 
@@ -217,34 +221,19 @@ class CollisionChecker(LeafSystem):
     def get_collision_detected_output_port(self):
         return self._collision_detected_output
 
+    def latch_state(self, context) -> LatchState:
+        """The latch, as :func:`~telesmooth.safety.collision_latch.latch_step` left it."""
+        return self._state.get(context)
+
     # -- the update -----------------------------------------------------------------------
+
+    def _query(self, q) -> tuple[float, bool]:
+        result = self._model.query(q)
+        return result.min_distance_m, result.in_collision(self._config.safety_margin_m)
 
     def _update(self, context, discrete_state) -> None:
         q = (self._q_target_input.Eval(context)
              if self._q_target_input.HasValue(context) else None)
-        checked = discrete_state.get_mutable_vector(self._checked_q_state)
-        if q is None or q.shape != (self._num_joints,) or not all(map(math.isfinite, q)):
-            distance, collision = 0.0, True
-            checked.SetFromVector(np.full(self._num_joints, np.nan))
-        elif np.array_equal(q, checked.get_value()):
-            # The same target as the last sample: the same distance (the query is a pure
-            # function of q; ~150 µs saved per sample while the operator holds still).
-            distance = context.get_discrete_state(self._distance_state).get_value()[0]
-            collision = distance < self._config.safety_margin_m
-        else:
-            result = self._model.query(q)
-            distance = result.min_distance_m
-            collision = result.in_collision(self._config.safety_margin_m)
-            checked.SetFromVector(q)
-        discrete_state.get_mutable_vector(self._distance_state).SetAtIndex(0, distance)
-        # f ← [f_2, …, f_N, c_k], shifted in place in the update's copy of the state.
-        flags = discrete_state.get_mutable_vector(self._flags_state).get_mutable_value()
-        flags[:-1] = flags[1:].copy()
-        flags[-1] = float(collision)
-
-    def _calc_in_collision(self, context, output) -> None:
-        output.SetAtIndex(0, context.get_discrete_state(self._flags_state).get_value()[-1])
-
-    def _calc_collision_detected(self, context, output) -> None:
-        flags = context.get_discrete_state(self._flags_state).get_value()
-        output.SetAtIndex(0, float(np.max(flags)))
+        self._state.store(discrete_state, latch_step(
+            self.latch_state(context), q, query=self._query,
+            safety_margin_m=self._config.safety_margin_m))

@@ -16,7 +16,7 @@ the clutch release and the stop's playout) and
 :func:`~telesmooth.safety.fifo.fifo_plan_contingency` (the stop planned between ticks): the
 system holds the ports, and the step's
 :class:`~telesmooth.safety.fifo.FifoState` lives in the Context as one discrete vector
-(:class:`~telesmooth.safety.state_codec.VectorCodec`).
+(:class:`~telesmooth.systems.codec_state.CodecState`).
 """
 
 from __future__ import annotations
@@ -38,8 +38,8 @@ from telesmooth.safety.fifo import (
     fifo_plan_contingency,
     fifo_step,
 )
-from telesmooth.safety.state_codec import VectorCodec
 from telesmooth.safety.stop import StopParams
+from telesmooth.systems.codec_state import CodecState
 from telesmooth.systems.timing import check_period, delay_in_samples
 
 _logger = logging.getLogger(__name__)
@@ -264,8 +264,7 @@ class DelayFifo(LeafSystem):
                                   max_stop_ticks=(config.max_stop_ticks
                                                   if self._planner is not None else 0))
         initial = fifo_initial_state(self._params, q0)
-        self._codec = VectorCodec(initial)
-        self._state_index = self.DeclareDiscreteState(self._codec.pack(initial))
+        self._state = CodecState(self, initial)
         if self._planner is not None:
             self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.5 * config.period_s,
                                                     self._update_contingency)
@@ -365,7 +364,7 @@ class DelayFifo(LeafSystem):
 
     def fifo_state(self, context) -> FifoState:
         """The FIFO's state in ``context`` (between ticks)."""
-        return self._codec.unpack(context.get_discrete_state(self._state_index).get_value())
+        return self._state.get(context)
 
     # -- the tick -------------------------------------------------------------------------
 
@@ -402,8 +401,7 @@ class DelayFifo(LeafSystem):
         state = self.fifo_state(context)
         planned = fifo_plan_contingency(self._params, state, self._q_sent(context))
         if planned is not state:
-            discrete_state.get_mutable_vector(self._state_index).SetFromVector(
-                self._codec.pack(planned))
+            self._state.store(discrete_state, planned)
 
     def _update_queue(self, context, discrete_state):
         state, outputs = self._tick(context)
@@ -411,5 +409,4 @@ class DelayFifo(LeafSystem):
             _logger.warning("%s: collision at t = %.3f s with no stop planned for this "
                             "history (a tick forced without the mid-period update): hold",
                             self.get_name() or "DelayFifo", context.get_time())
-        discrete_state.get_mutable_vector(self._state_index).SetFromVector(
-            self._codec.pack(state))
+        self._state.store(discrete_state, state)

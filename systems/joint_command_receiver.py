@@ -36,7 +36,7 @@ from telesmooth.link.receiver import (
     receiver_step,
 )
 from telesmooth.link.session import EPOCH_BITS
-from telesmooth.safety.state_codec import VectorCodec
+from telesmooth.systems.codec_state import CodecState
 from telesmooth.systems.timing import check_period
 
 __all__ = [
@@ -184,28 +184,20 @@ class JointCommandReceiver(LeafSystem):
                                       upper_rad=self._upper, key=self._key,
                                       onboard_epoch=self._epoch, timeout_s=config.timeout_s)
         initial = receiver_initial_state(q0)
-        self._codec = VectorCodec(initial)
-        self._state_index = self.DeclareDiscreteState(self._codec.pack(initial))
+        self._state = CodecState(self, initial)
         self._rejection_state = self.DeclareAbstractState(AbstractValue.Make(""))
         self.DeclarePeriodicUnrestrictedUpdateEvent(config.poll_period_s, 0.0,
                                                     self._update_command)
         self.DeclareInitializationUnrestrictedUpdateEvent(self._update_command)
         self.DeclareForcedUnrestrictedUpdateEvent(self._update_command)
 
-        def state_output(name, field):
-            where = self._codec.field_slice(field)
-            size = where.stop - where.start
-            return self.DeclareVectorOutputPort(
-                name, size, lambda c, o: o.SetFromVector(self._vector(c)[where]),
-                {self.xd_ticket()})
-
-        self._q_output = state_output("q_commanded", "command")
-        self._seq_output = state_output("last_command_seq", "last_seq")
-        self._session_output = state_output("last_command_session", "last_session")
-        self._rejected_output = state_output("command_rejected", "rejected")
-        self._timeout_output = state_output("command_timeout", "timeout")
-        self._accepted_output = state_output("accepted_count", "accepted")
-        self._counts_output = state_output("rejection_counts", "counts")
+        self._q_output = self._state.output("q_commanded", "command")
+        self._seq_output = self._state.output("last_command_seq", "last_seq")
+        self._session_output = self._state.output("last_command_session", "last_session")
+        self._rejected_output = self._state.output("command_rejected", "rejected")
+        self._timeout_output = self._state.output("command_timeout", "timeout")
+        self._accepted_output = self._state.output("accepted_count", "accepted")
+        self._counts_output = self._state.output("rejection_counts", "counts")
         self._last_rejection_output = self.DeclareStateOutputPort(
             "last_rejection", self._rejection_state)
 
@@ -258,7 +250,7 @@ class JointCommandReceiver(LeafSystem):
 
     def receiver_state(self, context) -> ReceiverState:
         """The receiver's state in ``context`` (between polls)."""
-        return self._codec.unpack(self._vector(context))
+        return self._state.get(context)
 
     def rejection_counts(self, context) -> dict:
         """{class: count} of the packets not accepted so far (plus "accepted")."""
@@ -266,9 +258,6 @@ class JointCommandReceiver(LeafSystem):
         counts = dict(state.counts._asdict())
         counts["accepted"] = state.accepted
         return counts
-
-    def _vector(self, context):
-        return context.get_discrete_state(self._state_index).get_value()
 
     def _update_command(self, context, state):
         now = context.get_time()
@@ -287,8 +276,7 @@ class JointCommandReceiver(LeafSystem):
             log = _logger.warning if rejection.kind in FLAGGED else _logger.info
             log("%s: packet rejected at t = %.3f s (%s)",
                 self.get_name() or "JointCommandReceiver", now, rejection)
-        state.get_mutable_discrete_state(self._state_index).SetFromVector(
-            self._codec.pack(after))
+        self._state.store(state, after)
         if rejections:
             state.get_mutable_abstract_state(self._rejection_state).set_value(
                 str(rejections[-1]))

@@ -5,7 +5,7 @@ A thin Drake system around the pure state machine :func:`telesmooth.safety.guard
 (see :mod:`telesmooth.safety.guard` for the modes, the rules and the guarantees). It sits
 between the :class:`~telesmooth.systems.joint_command_receiver.JointCommandReceiver` and the
 robot's command interpolator; all its state (a :class:`~telesmooth.safety.guard.GuardState`)
-lives in the Context as one discrete vector (:class:`~telesmooth.safety.state_codec.VectorCodec`),
+lives in the Context as one discrete vector (:class:`~telesmooth.systems.codec_state.CodecState`),
 and the only things on ``self`` are immutable parameters.
 """
 
@@ -27,8 +27,8 @@ from telesmooth.safety.guard import (
     guard_params,
     guard_step,
 )
-from telesmooth.safety.state_codec import VectorCodec
 from telesmooth.safety.stop import StopPlan, plan_stop
+from telesmooth.systems.codec_state import CodecState
 
 __all__ = [
     "GUARD_MODES",
@@ -128,37 +128,26 @@ class LinkGuard(LeafSystem):
             max_jerk=max_jerk, max_velocity=max_velocity, pose_is_safe=pose_is_safe)
         n = self._params.num_joints
         initial = guard_initial_state(self._params)
-        self._codec = VectorCodec(initial)
 
         self._q_accepted_input = self.DeclareVectorInputPort("q_accepted", n)
         self._accepted_count_input = self.DeclareVectorInputPort("accepted_count", 1)
         self._command_seq_input = self.DeclareVectorInputPort("command_seq", 1)
         self._command_session_input = self.DeclareVectorInputPort("command_session", 1)
 
-        self._state_index = self.DeclareDiscreteState(self._codec.pack(initial))
+        self._state = CodecState(self, initial)
         self.DeclarePeriodicDiscreteUpdateEvent(config.poll_period_s, 0.0, self._update_guard)
         self.DeclareForcedDiscreteUpdateEvent(self._update_guard)
 
-        history = self._codec.field_slice("history")
+        history = self._state.codec.field_slice("history")
         command = slice(history.stop - n, history.stop)   # the last row of the history
-
-        def state_output(name, size, part):
-            return self.DeclareVectorOutputPort(
-                name, size, lambda c, out: out.SetFromVector(self._vector(c)[part]),
-                {self.xd_ticket()})
-
-        self._q_commanded_output = state_output("q_commanded", n, command)
-        self._guard_mode_output = state_output("guard_mode", 1, self._codec.field_slice("mode"))
-        self._braking_distance_output = state_output(
-            "braking_distance", n, self._codec.field_slice("braking_distance"))
-        self._stop_outcome_output = state_output(
-            "stop_outcome", 1, self._codec.field_slice("stop_outcome"))
-        self._command_count_output = state_output(
-            "command_count", 1, self._codec.field_slice("command_count"))
-        self._stream_distance_output = state_output(
-            "stream_distance", 1, self._codec.field_slice("stream_distance_rad"))
-        self._limited_count_output = state_output(
-            "limited_count", 1, self._codec.field_slice("limited_count"))
+        state_output = self._state.output
+        self._q_commanded_output = state_output("q_commanded", command)
+        self._guard_mode_output = state_output("guard_mode", "mode")
+        self._braking_distance_output = state_output("braking_distance", "braking_distance")
+        self._stop_outcome_output = state_output("stop_outcome", "stop_outcome")
+        self._command_count_output = state_output("command_count", "command_count")
+        self._stream_distance_output = state_output("stream_distance", "stream_distance_rad")
+        self._limited_count_output = state_output("limited_count", "limited_count")
 
     # -- accessors ------------------------------------------------------------------------
 
@@ -202,7 +191,7 @@ class LinkGuard(LeafSystem):
 
     def guard_state(self, context):
         """The :class:`~telesmooth.safety.guard.GuardState` in ``context``."""
-        return self._codec.unpack(self._vector(context))
+        return self._state.get(context)
 
     def get_q_accepted_input_port(self):
         return self._q_accepted_input
@@ -239,9 +228,6 @@ class LinkGuard(LeafSystem):
 
     # -- the poll -------------------------------------------------------------------------
 
-    def _vector(self, context) -> np.ndarray:
-        return context.get_discrete_state(self._state_index).get_value()
-
     def _update_guard(self, context, discrete_state):
         packet_id = None
         if self._command_seq_input.HasValue(context):
@@ -254,5 +240,4 @@ class LinkGuard(LeafSystem):
             q_accepted=np.array(self._q_accepted_input.Eval(context), dtype=float),
             packet_id=packet_id)
         state, _ = guard_step(self._params, self.guard_state(context), inputs)
-        discrete_state.get_mutable_vector(self._state_index).SetFromVector(
-            self._codec.pack(state))
+        self._state.store(discrete_state, state)

@@ -27,7 +27,7 @@ from telesmooth.link.monitor import (
     monitor_initial_state,
     monitor_step,
 )
-from telesmooth.safety.state_codec import VectorCodec
+from telesmooth.systems.codec_state import CodecState
 from telesmooth.systems.timing import check_period
 
 __all__ = ["LINK_STATUSES", "LinkMonitor", "LinkMonitorConfig", "LinkStatus", "ONBOARD_COUNTS",
@@ -116,23 +116,17 @@ class LinkMonitor(LeafSystem):
         self._count_input = self.DeclareVectorInputPort("telemetry_count", 1)
         self._sequence_input = self.DeclareVectorInputPort("sequence_number", 1)
         initial = monitor_initial_state(session_id=session_id, onboard_epoch=onboard_epoch)
-        self._codec = VectorCodec(initial)
-        self._state = self.DeclareDiscreteState(self._codec.pack(initial))
+        self._state = CodecState(self, initial)
         self.DeclarePeriodicDiscreteUpdateEvent(config.poll_period_s, 0.0, self._update)
         self.DeclareForcedDiscreteUpdateEvent(self._update)
 
-        def state_output(name, field):
-            where = self._codec.field_slice(field)
-            return self.DeclareVectorOutputPort(
-                name, where.stop - where.start,
-                lambda c, o: o.SetFromVector(self._values(c)[where]), {self.xd_ticket()})
-
-        arrival = self._codec.field_slice("arrival").start
+        state_output = self._state.output
+        arrival = self._state.codec.field_slice("arrival").start
         state_output("link_status", "status")
         self.DeclareVectorOutputPort(
             "telemetry_age", 1,
-            lambda c, o: o.SetAtIndex(0, -1.0 if self._values(c)[arrival] < 0
-                                      else c.get_time() - self._values(c)[arrival]),
+            lambda c, o: o.SetAtIndex(0, -1.0 if self._state.vector(c)[arrival] < 0
+                                      else c.get_time() - self._state.vector(c)[arrival]),
             {self.xd_ticket(), self.time_ticket()})
         state_output("unacknowledged", "unacknowledged")
         state_output("onboard_guard_mode", "guard_mode")
@@ -149,10 +143,7 @@ class LinkMonitor(LeafSystem):
 
     def monitor_state(self, context) -> MonitorState:
         """The monitor's state in ``context`` (between polls)."""
-        return self._codec.unpack(self._values(context))
-
-    def _values(self, context):
-        return context.get_discrete_state(self._state).get_value()
+        return self._state.get(context)
 
     def _update(self, context, discrete_state):
         count = self._count_input.Eval(context)[0] if self._count_input.HasValue(context) \
@@ -164,4 +155,4 @@ class LinkMonitor(LeafSystem):
         state = monitor_step(self._params, self.monitor_state(context),
                              MonitorInputs(now=context.get_time(), count=count, sent=sent,
                                            message=message))
-        discrete_state.get_mutable_vector(self._state).SetFromVector(self._codec.pack(state))
+        self._state.store(discrete_state, state)

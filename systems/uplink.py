@@ -15,7 +15,7 @@ from pydrake.systems.framework import LeafSystem
 
 from telesmooth.arms.joint_vectors import check_finite_per_joint
 from telesmooth.link.uplink import UplinkInputs, UplinkState, uplink_initial_state, uplink_step
-from telesmooth.safety.state_codec import VectorCodec
+from telesmooth.systems.codec_state import CodecState
 from telesmooth.systems.timing import check_period
 
 __all__ = ["Uplink", "UplinkConfig"]
@@ -94,28 +94,17 @@ class Uplink(LeafSystem):
         self._state_smoothed_input = self.DeclareVectorInputPort("state_smoothed", 4 * n)
         self._holding_input = self.DeclareVectorInputPort("holding", 1)
         initial = uplink_initial_state(q0)
-        self._codec = VectorCodec(initial)
-        self._state_index = self.DeclareDiscreteState(self._codec.pack(initial))
+        self._state = CodecState(self, initial)
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update_packet)
         # A forced update runs the same tick on demand (CalcForcedDiscreteVariableUpdate).
         self.DeclareForcedDiscreteUpdateEvent(self._update_packet)
-        sent = self._codec.field_slice("state_sent")
-
-        def state_output(name, where):
-            return self.DeclareVectorOutputPort(
-                name, where.stop - where.start,
-                lambda c, out: out.SetFromVector(self._vector(c)[where]),
-                prerequisites_of_calc={self.xd_ticket()})   # the state only: no feedthrough
-
-        self._q_sent_output = state_output("q_sent", slice(sent.start, sent.start + n))
-        self._state_sent_output = state_output("state_sent", sent)
-        self._sequence_output = state_output("sequence_number",
-                                             self._codec.field_slice("sequence"))
-        self._send_time_output = state_output("send_time", self._codec.field_slice("send_time"))
-        self._rejected_output = state_output("command_rejected",
-                                             self._codec.field_slice("rejected"))
-        self._holding_sent_output = state_output("holding_sent",
-                                                 self._codec.field_slice("holding"))
+        sent = self._state.codec.field_slice("state_sent")
+        self._q_sent_output = self._state.output("q_sent", slice(sent.start, sent.start + n))
+        self._state_sent_output = self._state.output("state_sent", sent)
+        self._sequence_output = self._state.output("sequence_number", "sequence")
+        self._send_time_output = self._state.output("send_time", "send_time")
+        self._rejected_output = self._state.output("command_rejected", "rejected")
+        self._holding_sent_output = self._state.output("holding_sent", "holding")
 
     @property
     def config(self) -> UplinkConfig:
@@ -150,10 +139,7 @@ class Uplink(LeafSystem):
 
     def uplink_state(self, context) -> UplinkState:
         """The last packet, as :func:`~telesmooth.link.uplink.uplink_step` left it."""
-        return self._codec.unpack(self._vector(context))
-
-    def _vector(self, context):
-        return context.get_discrete_state(self._state_index).get_value()
+        return self._state.get(context)
 
     def _update_packet(self, context, discrete_state):
         n = self._num_joints
@@ -164,5 +150,4 @@ class Uplink(LeafSystem):
                    and bool(self._holding_input.Eval(context)[0] > 0.5))
         inputs = UplinkInputs(now=context.get_time(), command=self._q_smoothed_input.Eval(context),
                               derivatives=derivatives, holding=holding)
-        discrete_state.get_mutable_vector(self._state_index).SetFromVector(
-            self._codec.pack(uplink_step(self.uplink_state(context), inputs)))
+        self._state.store(discrete_state, uplink_step(self.uplink_state(context), inputs))

@@ -18,6 +18,7 @@ import pytest
 SYSTEMS = Path(__file__).resolve().parents[1] / "systems"
 
 PURE_STEPS = {
+    "collision_checker.CollisionChecker": ("telesmooth.safety.collision_latch", "latch_step"),
     "delay_fifo.DelayFifo": ("telesmooth.safety.fifo", "fifo_step"),
     "joint_command_receiver.JointCommandReceiver": ("telesmooth.link.receiver",
                                                     "receiver_step"),
@@ -30,7 +31,6 @@ PURE_STEPS = {
 """System → (module, function) of its pure step."""
 
 NOT_YET = {
-    "collision_checker.CollisionChecker": "the collision latch over a period",
     "command_interpolator.CommandGate": "the ramp between 4 Hz commands and its rejection",
     "haptic_command_receiver.HapticCommandReceiver": "the haptic packets' checks and timeout",
     "inverse_kinematics.InverseKinematicsSystem": "the IK's holds and the clutch's anchor",
@@ -56,9 +56,16 @@ def _classes():
 
 
 def _declares_state(cls: ast.ClassDef) -> bool:
-    return any(isinstance(call, ast.Call) and isinstance(call.func, ast.Attribute)
-               and call.func.attr.startswith("Declare") and call.func.attr.endswith("State")
-               for call in ast.walk(cls))
+    """The class declares Context state: ``self.Declare…State(…)``, or its pure step's state
+    through ``CodecState(self, …)``."""
+    def declares(call):
+        func = call.func
+        if isinstance(func, ast.Name):
+            return func.id == "CodecState"
+        return (isinstance(func, ast.Attribute) and isinstance(func.value, ast.Name)
+                and func.value.id == "self" and func.attr.startswith("Declare")
+                and func.attr.endswith("State"))
+    return any(isinstance(call, ast.Call) and declares(call) for call in ast.walk(cls))
 
 
 STATEFUL = {name: (cls, tree) for name, cls, tree in _classes() if _declares_state(cls)}
