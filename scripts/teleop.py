@@ -258,39 +258,45 @@ def run_operator(scenario, *, lcm_url: str, host: str = "127.0.0.1", port: int |
     return 0
 
 
-def _operator_progress(handles, context, monitor) -> str:
+def _progress_parts(handles, context, monitor):
+    """What both progress lines read: the predictor's view, the last second's timing, and the
+    clutch in words."""
     predictor = handles.predictor
     view = predictor.view(predictor.GetMyContextFromRoot(context))
-    stats = monitor.statistics(last_s=1.0)
-    state = handles.console.console_state(handles.console.GetMyContextFromRoot(context))
-    clutch = "stopped" if state.stop else "engaged" if state.enabled else "released"
-    link = ("no telemetry yet" if not math.isfinite(view.telemetry_silence_s) else
+    console = handles.console
+    state = console.console_state(console.GetMyContextFromRoot(context)) if console else None
+    clutch = ("stopped" if state is not None and state.stop else
+              "engaged" if state is not None and state.enabled else "released")
+    return view, monitor.statistics(last_s=1.0), clutch
+
+
+def _link_words(view, arriving: str) -> str:
+    return ("no telemetry yet" if not math.isfinite(view.telemetry_silence_s) else
             f"no telemetry for {view.telemetry_silence_s:.1f} s"
-            if view.telemetry_silence_s > 1.0 else "telemetry arriving")
+            if view.telemetry_silence_s > 1.0 else arriving)
+
+
+def _residual_words(view) -> str:
+    return "—" if not math.isfinite(view.residual_m) else f"{1000 * view.residual_m:.2f} mm"
+
+
+def _operator_progress(handles, context, monitor) -> str:
+    view, stats, clutch = _progress_parts(handles, context, monitor)
     return (f"operator: t = {context.get_time():6.1f} s, real time {stats.realtime_rate:.2f}×,"
-            f" {link}, clutch {clutch}, prediction residual "
-            + ("—" if not math.isfinite(view.residual_m) else f"{1000 * view.residual_m:.2f} mm"))
+            f" {_link_words(view, 'telemetry arriving')}, clutch {clutch}, prediction "
+            f"residual {_residual_words(view)}")
 
 
 def _progress_line(handles, context, monitor) -> str:
     from telesmooth.safety.guard import GuardMode
 
-    predictor = handles.predictor
-    view = predictor.view(predictor.GetMyContextFromRoot(context))
-    stats = monitor.statistics(last_s=1.0)
-    console = handles.console
-    state = console.console_state(console.GetMyContextFromRoot(context)) if console else None
-    clutch = ("stopped" if state is not None and state.stop else
-              "engaged" if state is not None and state.enabled else "released")
-    link = ("no telemetry yet" if not math.isfinite(view.telemetry_silence_s) else
-            f"no telemetry for {view.telemetry_silence_s:.1f} s"
-            if view.telemetry_silence_s > 1.0 else
-            f"telemetry {1000 * view.telemetry_age_s:.0f} ms old")
+    view, stats, clutch = _progress_parts(handles, context, monitor)
+    link = _link_words(view, f"telemetry {1000 * view.telemetry_age_s:.0f} ms old")
     guard = ("—" if view.guard_mode < 0 else GuardMode(int(view.guard_mode)).label)
     return (f"teleop: t = {context.get_time():6.1f} s, real time {stats.realtime_rate:.2f}×, "
             f"late ticks {monitor.late_ticks} (worst {1000 * stats.worst_s:.0f} "
             f"ms), link: {link}, robot guard {guard}, clutch {clutch}, prediction residual "
-            + ("—" if not math.isfinite(view.residual_m) else f"{1000 * view.residual_m:.2f} mm"))
+            f"{_residual_words(view)}")
 
 
 def write_session(out: Path, handles, context, *, monitor=None) -> Path:

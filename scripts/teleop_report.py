@@ -37,6 +37,7 @@ from telesmooth.diagrams.simulation import (
 )
 from telesmooth.scripts.simulate_report import _write_csv, limits_text, write_record_report
 from telesmooth.systems.laser_tracker import tracker_record
+from telesmooth.systems.wall_clock_monitor import lateness
 
 __all__ = ["operator_recording", "teleop_record", "write_teleop_report"]
 
@@ -192,8 +193,7 @@ def _tick_lateness(monitor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     sim_t, wall_t = np.array(monitor.sim_t_s), np.array(monitor.wall_t_s)
     if sim_t.size == 0:
         return sim_t, wall_t, wall_t
-    wall = wall_t - wall_t[0]
-    return sim_t, wall, wall - (sim_t - sim_t[0]) / monitor.rate
+    return sim_t, wall_t - wall_t[0], lateness(sim_t, wall_t, sim_t[0], wall_t[0], monitor.rate)
 
 
 def _write_timing(out: Path, monitor) -> list[tuple[str, str]]:

@@ -21,7 +21,7 @@ from pydrake.systems.framework import LeafSystem
 
 from telesmooth.systems.timing import check_period
 
-__all__ = ["LatenessStatistics", "WallClockMonitor", "lateness_statistics"]
+__all__ = ["LatenessStatistics", "WallClockMonitor", "lateness", "lateness_statistics"]
 
 
 class LatenessStatistics(NamedTuple):
@@ -34,21 +34,33 @@ class LatenessStatistics(NamedTuple):
     realtime_rate: float     # simulated time / wall time over the run
 
 
+def lateness(sim_t, wall_t, sim_start: float, wall_start: float, rate: float = 1.0):
+    """How late ticks ran, s: (wall − wall₀) − (sim − sim₀)/rate, from the run's first tick
+    (sim₀, wall₀); a number or an array, as ``sim_t`` and ``wall_t``."""
+    return (wall_t - wall_start) - (sim_t - sim_start) / rate
+
+
+def _statistics(sim_t: np.ndarray, wall_t: np.ndarray, late: np.ndarray,
+                period_s: float) -> LatenessStatistics:
+    """The statistics of ticks (≥ 2) whose lateness is ``late``; the rate over their span."""
+    span = wall_t[-1] - wall_t[0]
+    return LatenessStatistics(
+        ticks=int(sim_t.size), late_ticks=int(np.count_nonzero(late > period_s)),
+        worst_s=float(max(0.0, late.max())),
+        p99_s=float(max(0.0, np.percentile(late, 99))),
+        realtime_rate=float((sim_t[-1] - sim_t[0]) / span) if span > 0 else float("nan"))
+
+
 def lateness_statistics(sim_t_s, wall_t_s, *, period_s: float,
                         rate: float = 1.0) -> LatenessStatistics:
-    """Lateness of each tick: (wall − wall₀) − (sim − sim₀)/rate, the first tick taken as the
-    start; a tick is late when its lateness exceeds ``period_s``."""
+    """Lateness of each tick (:func:`lateness`), the first tick taken as the start; a tick is
+    late when its lateness exceeds ``period_s``."""
     sim_t = np.asarray(sim_t_s, dtype=float)
     wall_t = np.asarray(wall_t_s, dtype=float)
     if sim_t.size < 2:
         return LatenessStatistics(int(sim_t.size), 0, 0.0, 0.0, float("nan"))
-    lateness = (wall_t - wall_t[0]) - (sim_t - sim_t[0]) / rate
-    elapsed = wall_t[-1] - wall_t[0]
-    return LatenessStatistics(
-        ticks=int(sim_t.size), late_ticks=int(np.count_nonzero(lateness > period_s)),
-        worst_s=float(max(0.0, lateness.max())),
-        p99_s=float(max(0.0, np.percentile(lateness, 99))),
-        realtime_rate=float((sim_t[-1] - sim_t[0]) / elapsed) if elapsed > 0 else float("nan"))
+    return _statistics(sim_t, wall_t, lateness(sim_t, wall_t, sim_t[0], wall_t[0], rate),
+                       period_s)
 
 
 class WallClockMonitor(LeafSystem):
@@ -81,8 +93,8 @@ class WallClockMonitor(LeafSystem):
         sim_t, wall_t = context.get_time(), self._clock()
         self.sim_t_s.append(sim_t)
         self.wall_t_s.append(wall_t)
-        lateness = (wall_t - self.wall_t_s[0]) - (sim_t - self.sim_t_s[0]) / self.rate
-        if lateness > self.period_s:
+        if lateness(sim_t, wall_t, self.sim_t_s[0], self.wall_t_s[0], self.rate) \
+                > self.period_s:
             self.late_ticks += 1
 
     def statistics(self, last_s: float | None = None) -> LatenessStatistics:
@@ -93,10 +105,5 @@ class WallClockMonitor(LeafSystem):
                                        rate=self.rate)
         first = bisect.bisect_left(self.sim_t_s, self.sim_t_s[-1] - last_s)
         sim_t, wall_t = np.array(self.sim_t_s[first:]), np.array(self.wall_t_s[first:])
-        lateness = (wall_t - self.wall_t_s[0]) - (sim_t - self.sim_t_s[0]) / self.rate
-        span = wall_t[-1] - wall_t[0]
-        recent_rate = ((sim_t[-1] - sim_t[0]) / span) if span > 0 else float("nan")
-        return LatenessStatistics(
-            ticks=int(sim_t.size), late_ticks=int(np.count_nonzero(lateness > self.period_s)),
-            worst_s=float(max(0.0, lateness.max())),
-            p99_s=float(max(0.0, np.percentile(lateness, 99))), realtime_rate=recent_rate)
+        return _statistics(sim_t, wall_t, lateness(sim_t, wall_t, self.sim_t_s[0],
+                                                   self.wall_t_s[0], self.rate), self.period_s)
