@@ -290,6 +290,7 @@ def MakeOperatorDiagram(scenario: Scenario, *, lcm, console, display=None,
                     positions.get_lcm_message_input_port())
     values = builder.AddNamedSystem("collision_events", CollisionEventValues())
     builder.Connect(events.get_lcm_message_output_port(), values.get_lcm_message_input_port())
+    builder.Connect(events.get_message_count_output_port(), values.get_message_count_input_port())
     if console.get_q_anchor_input_port() is not None:
         # Engaging after a stop re-anchors the hand at the last command the ground sent,
         # while its events say it holds the robot there.

@@ -127,9 +127,14 @@ def port_tables() -> str:
     return "\n".join(lines) + "\n"
 
 
+def _span(text: str) -> tuple[int, int]:
+    """Where the tables lie in ``text``: from the line after the first marker to the second."""
+    return text.index(BEGIN) + len(BEGIN) + 1, text.index(END)
+
+
 def documented_tables(text: str) -> str:
     """The part of ``text`` between the markers."""
-    start, end = text.index(BEGIN) + len(BEGIN) + 1, text.index(END)
+    start, end = _span(text)
     return text[start:end]
 
 
@@ -145,7 +150,7 @@ def main(argv=None) -> int:
     from telesmooth.atomic_files import write_text
 
     text = DOC.read_text()
-    start, end = text.index(BEGIN) + len(BEGIN) + 1, text.index(END)
+    start, end = _span(text)
     write_text(DOC, text[:start] + tables + text[end:])
     print(f"wrote the port tables into {DOC}")
     return 0

@@ -142,16 +142,21 @@ class CollisionEventValues(LeafSystem):
         name: CollisionEventValues
         input_ports:
         - lcm_message
+        - message_count
         output_ports:
         - collision_detected
         - holding
         - min_distance
+
+    ``message_count`` is the subscriber's count of messages received: with none (0, or the
+    port unconnected) there is no event yet, whatever the held message's fields hold.
     """
 
     def __init__(self):
         super().__init__()
         self._input = self.DeclareAbstractInputPort(
             "lcm_message", AbstractValue.Make(lcmt_teleop_collision_event()))
+        self._count_input = self.DeclareVectorInputPort("message_count", 1)
         self._outputs = {name: self.DeclareVectorOutputPort(
             name, 1, lambda context, output, name=name: output.SetAtIndex(
                 0, self._values(context)[name])) for name in
@@ -160,12 +165,15 @@ class CollisionEventValues(LeafSystem):
     def get_lcm_message_input_port(self):
         return self._input
 
+    def get_message_count_input_port(self):
+        return self._count_input
+
     def GetOutput(self, name: str):
         return self._outputs[name]
 
     def _values(self, context) -> dict:
-        msg = self._input.Eval(context)
-        if msg.utime == 0 and msg.seq == 0 and msg.min_distance_m == 0.0:
+        if not (self._count_input.HasValue(context) and self._count_input.Eval(context)[0] > 0):
             return dict.fromkeys(("collision_detected", "holding", "min_distance"), np.nan)
+        msg = self._input.Eval(context)
         return {"collision_detected": float(msg.collision_detected),
                 "holding": float(msg.holding), "min_distance": float(msg.min_distance_m)}
