@@ -12,9 +12,9 @@ session (:mod:`telesmooth.link.session`).
 from __future__ import annotations
 
 import dataclasses
-import enum
 from typing import NamedTuple
 
+from telesmooth.labelled_enum import LabelledEnum
 from telesmooth.link.receiver import FLAGGED, REJECTION_CLASSES, RejectionCounts
 from telesmooth.link.session import NONCE_BITS, next_session
 
@@ -23,18 +23,13 @@ __all__ = ["LINK_STATUSES", "LinkStatus", "MonitorInputs", "MonitorParams", "Mon
            "monitor_step"]
 
 
-class LinkStatus(enum.IntEnum):
+class LinkStatus(LabelledEnum):
     """The link as the ground sees it (the values are the ``link_status`` port's)."""
 
     NO_TELEMETRY = 0
     OK = 1
     DEGRADED = 2
     LOST = 3
-
-    @property
-    def label(self) -> str:
-        """As reports and progress lines write it (``"no-telemetry"``)."""
-        return self.name.lower().replace("_", "-")
 
 
 LINK_STATUSES = tuple(status.label for status in LinkStatus)

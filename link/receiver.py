@@ -32,11 +32,11 @@ system around it (ports, and the :class:`ReceiverState` as one Context vector).
 from __future__ import annotations
 
 import dataclasses
-import enum
 from typing import NamedTuple
 
 import numpy as np
 
+from telesmooth.labelled_enum import LabelledEnum
 from telesmooth.lcm_types import decode_exact, lcmt_teleop_joint_command
 from telesmooth.link.auth import verify
 from telesmooth.link.session import classify_session
@@ -58,7 +58,7 @@ __all__ = [
 ]
 
 
-class PacketClass(enum.IntEnum):
+class PacketClass(LabelledEnum):
     """What a packet is; the rejections' values are their index in ``rejection_counts``."""
 
     INVALID = 0
@@ -70,11 +70,6 @@ class PacketClass(enum.IntEnum):
     ACCEPTED = 6
     IGNORED = 7
     """The sender's seq = −1 placeholder before its first packet: not a packet."""
-
-    @property
-    def label(self) -> str:
-        """The class's name as reports and logs write it (``"invalid"``)."""
-        return self.name.lower()
 
 
 REJECTION_CLASSES = tuple(kind.label for kind in PacketClass if kind < PacketClass.ACCEPTED)

@@ -63,7 +63,6 @@ Context.
 from __future__ import annotations
 
 import dataclasses
-import enum
 import math
 from collections.abc import Callable
 from typing import NamedTuple
@@ -75,6 +74,7 @@ from telesmooth.arms.joint_vectors import (
     check_joint_limits,
     check_joint_vector,
 )
+from telesmooth.labelled_enum import LabelledEnum
 from telesmooth.safety.limiter import (
     DEFAULT_MARGIN,
     HISTORY_LENGTH,
@@ -114,17 +114,13 @@ limiter reproduces a stream within the limits up to the rounding of its nominal 
 such a stream must pass bit for bit."""
 
 
-class GuardMode(enum.IntEnum):
+class GuardMode(LabelledEnum):
     """The guard's mode (the value is what the ``guard_mode`` port and the telemetry carry)."""
 
     TRACK = 0
     STOPPING = 1
     HELD = 2
     RESUMING = 3
-
-    @property
-    def label(self) -> str:
-        return self.name.lower()
 
 
 @dataclasses.dataclass(frozen=True)

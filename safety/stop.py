@@ -42,13 +42,13 @@ not checked reaches the plant, and when in doubt the robot holds.
 
 from __future__ import annotations
 
-import enum
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from telesmooth.labelled_enum import LabelledEnum
 from telesmooth.safety.limiter import (
     DEFAULT_MARGIN,
     HISTORY_LENGTH,
@@ -74,7 +74,7 @@ __all__ = [
 ]
 
 
-class StopOutcome(enum.IntEnum):
+class StopOutcome(LabelledEnum):
     """What a stop plan is (the values are the indices logged on the ``stop_status`` and
     ``stop_outcome`` ports)."""
 
@@ -92,11 +92,6 @@ class StopOutcome(enum.IntEnum):
     """Fallback: the only admissible stop first moves a joint back past q_hold."""
     HOLD_TOO_LONG = 6
     """Fallback: the stop needs more than ``max_ticks`` commands."""
-
-    @property
-    def label(self) -> str:
-        """The name used in reports and logs, e.g. ``"hold-not-stoppable"``."""
-        return self.name.lower().replace("_", "-")
 
 
 STOP_OUTCOMES = tuple(outcome.label for outcome in StopOutcome)
