@@ -236,6 +236,7 @@ def MakeOperatorDiagram(scenario: Scenario, *, lcm, console, display=None,
     )
     from telesmooth.systems.inverse_kinematics import InverseKinematicsSystem
     from telesmooth.systems.lcm_safe_subscriber import LcmSafeSubscriber
+    from telesmooth.systems.operator_display import predictor_ports
     from telesmooth.systems.operator_messages import (
         CollisionEventValues,
         HapticCommandSender,
@@ -309,11 +310,8 @@ def MakeOperatorDiagram(scenario: Scenario, *, lcm, console, display=None,
                  "sent_sequence": positions.get_sequence_number_output_port(),
                  "collision": values.GetOutput("collision_detected"),
                  "holding": values.GetOutput("holding"),
-                 "min_distance": values.GetOutput("min_distance")}
-        for name in ("q_received", "tool_received", "q_predicted", "telemetry_age",
-                     "telemetry_silence", "residual", "robot_guard_mode",
-                     "robot_stream_distance"):
-            ports[name] = predictor.get_output(name)
+                 "min_distance": values.GetOutput("min_distance"),
+                 **predictor_ports(predictor)}
         display.ConnectPorts(builder, ports)
     if monitor is not None:
         builder.AddNamedSystem("wall_clock_monitor", monitor)

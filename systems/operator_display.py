@@ -37,7 +37,8 @@ from telesmooth.arms.description import ArmDescription
 from telesmooth.arms.drake_models import add_arm
 from telesmooth.console.status import StatusInputs, fd_ratios, status_lines
 
-__all__ = ["ArmDrawing", "DisplayClock", "OperatorDisplay", "capsule_mesh", "link_visual_pose"]
+__all__ = ["PREDICTOR_PORTS", "ArmDrawing", "DisplayClock", "OperatorDisplay", "capsule_mesh",
+           "link_visual_pose", "predictor_ports"]
 
 PLANNING_RGBA = Rgba(0.25, 0.45, 0.9, 1.0)
 COLLISION_RGBA = Rgba(0.9, 0.15, 0.1, 1.0)
@@ -154,6 +155,17 @@ class DisplayClock:
     def __init__(self):
         self.realtime_rate = math.nan
         self.late_ticks = 0
+
+
+
+PREDICTOR_PORTS = ("q_received", "tool_received", "q_predicted", "telemetry_age",
+                   "telemetry_silence", "residual", "robot_guard_mode", "robot_stream_distance")
+"""The display's inputs that the robot predictor gives, under the predictor's port names."""
+
+
+def predictor_ports(predictor) -> dict:
+    """{display input name: the predictor's output port} for :data:`PREDICTOR_PORTS`."""
+    return {name: predictor.get_output(name) for name in PREDICTOR_PORTS}
 
 
 class OperatorDisplay(LeafSystem):
@@ -281,10 +293,7 @@ class OperatorDisplay(LeafSystem):
             (uplink.get_q_sent_output_port(), "q_sent"),
             (uplink.get_sequence_number_output_port(), "sent_sequence"),
         ]
-        for name in ("q_received", "tool_received", "q_predicted", "telemetry_age",
-                     "telemetry_silence", "residual", "robot_guard_mode",
-                     "robot_stream_distance"):
-            pairs.append((predictor.get_output(name), name))
+        pairs += [(port, name) for name, port in predictor_ports(predictor).items()]
         if console is not None:
             pairs += [(console.get_notice_output_port(), "notice"),
                       (console.get_saturated_output_port(), "saturated")]
