@@ -31,9 +31,10 @@ from telesmooth.systems.flexible_arm import make_simulator
 from telesmooth.systems.laser_tracker import tracker_record
 
 __all__ = ["GuardRecord", "ResponseErrors", "SimulationRecord", "ground_fields", "guard_metrics",
-           "guard_record", "plant_summary", "plant_text", "received_response_errors",
-           "record_meshcat_html", "response_delay_s", "response_errors", "response_instants",
-           "run_duration_s", "run_metrics", "sample_at", "simulate", "tool_positions"]
+           "guard_record", "guard_record_metrics", "plant_summary", "plant_text",
+           "received_response_errors", "record_meshcat_html", "response_delay_s",
+           "response_errors", "response_instants", "run_duration_s", "run_metrics", "sample_at",
+           "simulate", "tool_positions"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -438,14 +439,22 @@ def guard_metrics(record: SimulationRecord) -> dict | None:
       (the guard's commands, after the robot's rest at its start pose), against the limits
       (:func:`~telesmooth.smoothing.metrics.limit_statistics`).
     """
-    guard = record.guard
-    if guard is None:
+    if record.guard is None:
         return None
+    return guard_record_metrics(record.guard, record.scenario, record.joint_names,
+                                record.initial_position_rad)
+
+
+def guard_record_metrics(guard: GuardRecord, scenario: Scenario, joint_names,
+                         initial_position_rad) -> dict:
+    """:func:`guard_metrics` of the guard's record of any run (a simulation's, a playback's):
+    the scenario gives the limits and the uplink period, the robot started at
+    ``initial_position_rad``."""
     from telesmooth.smoothing.metrics import finite_differences, limit_statistics
     from telesmooth.systems.link_guard import GUARD_MODES, MODE_RESUMING, MODE_TRACK
 
-    scenario = record.scenario
-    n, names = record.num_joints, record.joint_names
+    names = tuple(joint_names)
+    n = len(names)
     a_max = as_per_joint("max_acceleration_rad_per_s2",
                          scenario.smoother.max_acceleration_rad_per_s2, n, names, allow_inf=True)
     j_max = as_per_joint("max_jerk_rad_per_s3", scenario.smoother.max_jerk_rad_per_s3, n,
@@ -453,7 +462,7 @@ def guard_metrics(record: SimulationRecord) -> dict | None:
     modes = guard.mode[np.searchsorted(guard.poll_t_s, guard.command_t_s)]
     following = (modes == MODE_TRACK) | (modes == MODE_RESUMING)
     cut = np.abs(guard.q_commanded - guard.q_followed)[following]
-    rest = np.tile(record.initial_position_rad, (3, 1))
+    rest = np.tile(np.asarray(initial_position_rad, dtype=float), (3, 1))
     sequence = np.vstack([rest, guard.q_commanded])
     period = scenario.uplink.period_s
     return {

@@ -81,7 +81,7 @@ from telesmooth.diagrams.offline_validation import validate_joint_path
 from telesmooth.diagrams.scenario import CHAINS, Scenario, make_haptic_recording
 from telesmooth.diagrams.session_sampling import joint_targets_at_uplink_rate, recording_ticks
 from telesmooth.diagrams.simulation import (
-    guard_metrics,
+    guard_record_metrics,
     plant_summary,
     response_delay_s,
     response_instants,
@@ -631,10 +631,9 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
     metrics["presim_violations"] = {**kinds, "total": len(violations)}
     metrics["delay_s"] = delay * period
     metrics["chain"] = scenario.chain
-    metrics["guard"] = (guard_metrics(_GuardedRun(
-        guard=playback_guard_record(logs, scenario.command_receiver.poll_period_s),
-        scenario=scenario, num_joints=n, joint_names=names, initial_position_rad=q_start))
-        if deployed else None)
+    metrics["guard"] = (guard_record_metrics(
+        playback_guard_record(logs, scenario.command_receiver.poll_period_s), scenario, names,
+        q_start) if deployed else None)
     metrics["details"] = result.details
     if result.sigma is not None and result.final_sigma is not None:
         # The reduced-Q σ of an online smoother: where it started, ended and whether it never
@@ -696,19 +695,6 @@ def _motion_deformation(setup: ComparisonSetup, estimate: np.ndarray) -> dict:
     cartesian = np.linalg.norm(setup.fk(estimate[part]) - setup.operator_tool_m[part], axis=-1)
     return {"position_mean_rad": float(np.max(position["mean"])),
             "cartesian_mean_m": float(cartesian.mean())}
-
-
-@dataclasses.dataclass(frozen=True, eq=False)
-class _GuardedRun:
-    """What :func:`~telesmooth.diagrams.simulation.guard_metrics` reads of a run (the fields
-    of a :class:`~telesmooth.diagrams.simulation.SimulationRecord` it uses): the guard's
-    record, the scenario (limits, uplink period), the joints and the robot's start pose."""
-
-    guard: object
-    scenario: Scenario
-    num_joints: int
-    joint_names: tuple
-    initial_position_rad: np.ndarray
 
 
 def _playback_key(setup: ComparisonSetup, packet_states: np.ndarray) -> tuple:
