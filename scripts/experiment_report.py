@@ -19,10 +19,8 @@ Output folder:
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import math
-import os
 import time
 from pathlib import Path
 
@@ -51,12 +49,19 @@ from telesmooth.studies.experiment import (
     run_experiment,
     task_groups,
 )
-from telesmooth.user_input import MAX_JSON_BYTES, read_file_bytes
+from telesmooth.studies.journal import (
+    GRID_FILE,
+    FolderLock,
+    RecordLog,
+    check_grid,
+    grid_fingerprint,
+    read_records,
+)
 
-__all__ = ["claim_figures_markdown", "code_fingerprint", "grid_fingerprint",
+__all__ = ["claim_figures_markdown",
            "guard_table_markdown",
            "main_table_markdown",
-           "merge_experiment_reports", "read_records", "write_experiment_report"]
+           "merge_experiment_reports", "write_experiment_report"]
 
 
 _COLUMNS = (
@@ -696,115 +701,6 @@ def _plant_step_text(step_s) -> str:
     return "continuous" if step_s == 0 else f"stepped at {step_s * 1e3:g} ms"
 
 
-GRID_FILE = "grid.json"
-RECORDS_FILE = "records.jsonl"
-MAX_RECORDS_BYTES = 512 << 20
-"""Largest records.jsonl read, bytes."""
-
-
-READS_RECORDS_ONLY = ("scripts", "tests", "docs", "studies/claims.py", "studies/verdicts.py")
-"""Parts of the package that only read records (the reports, the claims): changing them does
-not change a record, so a finished grid can be reported again with them."""
-
-REPORT_FIELDS = ("kf_form",)
-"""Fields of :class:`ExperimentConfig` that only change how the records are judged."""
-
-
-def code_fingerprint() -> str:
-    """sha256 of the package's sources and data files that compute records (everything but
-    :data:`READS_RECORDS_ONLY`): records of another version of that code are not mixed in."""
-    import telesmooth
-
-    root = Path(telesmooth.__file__).resolve().parent
-    digest = hashlib.sha256()
-    for path in sorted(root.rglob("*")):
-        relative = path.relative_to(root)
-        if (path.is_file() and path.suffix in (".py", ".yaml", ".sdf", ".lcm")
-                and relative.parts[0] not in (".venv", ".git")
-                and not any(relative.as_posix() == part or relative.parts[0] == part
-                            for part in READS_RECORDS_ONLY)
-                and not any(part.startswith(".") for part in relative.parts)):
-            digest.update(relative.as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
-    return digest.hexdigest()
-
-
-def grid_fingerprint(base, config: ExperimentConfig) -> dict:
-    """What makes two runs parts of the same experiment: the grid (without how it is run or
-    judged: :data:`REPORT_FIELDS`), the base scenario and the code that computes records.
-    {"fingerprint": sha256 hex, "config", "base", "code"}."""
-    grid = json.loads(json.dumps(dataclasses.asdict(config), default=repr))   # as stored
-    for field in REPORT_FIELDS:
-        grid.pop(field, None)
-    code = code_fingerprint()
-    text = json.dumps({"config": grid, "base": repr(base), "code": code}, sort_keys=True)
-    return {"fingerprint": hashlib.sha256(text.encode()).hexdigest(), "config": grid,
-            "base": repr(base), "code": code}
-
-
-def _check_grid(out: Path, grid: dict) -> None:
-    """Writes grid.json into a new folder, or refuses a folder of another experiment."""
-    path = out / GRID_FILE
-    if path.exists():
-        try:
-            held = json.loads(read_file_bytes(path, what=str(path), max_bytes=MAX_JSON_BYTES))
-            if not isinstance(held, dict):
-                raise ValueError("not a mapping")
-        except (OSError, ValueError) as error:
-            raise ValueError(f"--out {str(out)!r}: {GRID_FILE} cannot be read ({error}); "
-                             "use another folder") from None
-        if held.get("fingerprint") != grid["fingerprint"]:
-            changed = sorted(key for key in set(held.get("config", {})) | set(grid["config"])
-                             if held.get("config", {}).get(key) != grid["config"].get(key))
-            if held.get("base") != grid["base"]:
-                changed.append("the base scenario")
-            if held.get("code") != grid["code"]:
-                changed.append("the code (telesmooth was changed since)")
-            raise ValueError(
-                f"--out {str(out)!r} holds the records of another experiment (it differs in: "
-                f"{', '.join(changed) or 'the grid'}); a changed configuration is not mixed "
-                "in: use another folder")
-        return
-    write_text(path, json.dumps(grid, indent=1) + "\n")
-
-
-def read_records(out: Path) -> dict:
-    """The records kept in a folder, by task key. A last line cut short (a run stopped while
-    writing it) is ignored: its task runs again."""
-    path = Path(out) / RECORDS_FILE
-    records = {}
-    if not path.exists():
-        return records
-    data = read_file_bytes(path, what=str(path), max_bytes=MAX_RECORDS_BYTES)
-    lines = data.split(b"\n")
-    for number, line in enumerate(lines[:-1], start=1):   # the last piece: cut short or b""
-        try:
-            record = json.loads(line)
-            records[record["key"]] = record
-        except (ValueError, TypeError, KeyError) as error:
-            raise ValueError(f"{path}: line {number} is not a task record ({error}); use "
-                             "another --out folder") from None
-    return records
-
-
-class _RecordLog:
-    """Appends each finished task's record to records.jsonl, on disk before the next."""
-
-    def __init__(self, out: Path):
-        self.path = out / RECORDS_FILE
-        # Drop a last line cut short, so the appended lines start on a line of their own.
-        if self.path.exists():
-            data = self.path.read_bytes()
-            if data and not data.endswith(b"\n"):
-                with self.path.open("r+b") as handle:
-                    handle.truncate(data.rfind(b"\n") + 1)
-
-    def __call__(self, record: dict) -> None:
-        with self.path.open("a") as handle:
-            handle.write(json.dumps(record, default=float) + "\n")
-            handle.flush()
-            os.fsync(handle.fileno())
-
-
 def parse_shard(text: str | None) -> tuple[int, int] | None:
     """``"K/N"`` → (K, N), 1 ≤ K ≤ N: this run does every N-th demonstration's tasks from the
     K-th."""
@@ -817,30 +713,6 @@ def parse_shard(text: str | None) -> tuple[int, int] | None:
     if not 1 <= part <= parts:
         raise ValueError(f"--shard = {text[:40]!r}: K must be between 1 and N")
     return part, parts
-
-
-class _FolderLock:
-    """One run at a time per output folder (an advisory lock on ``.lock``): two runs on one
-    folder would compute the same tasks twice and could cut each other's lines."""
-
-    def __init__(self, out: Path):
-        self.path = out / ".lock"
-
-    def __enter__(self):
-        import fcntl
-
-        self.handle = self.path.open("a")
-        try:
-            fcntl.flock(self.handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            self.handle.close()
-            raise ValueError(f"--out {str(self.path.parent)[:80]!r} is being used by another "
-                             "experiment run; wait for it or use another folder") from None
-        return self
-
-    def __exit__(self, *exc):
-        self.handle.close()          # closing releases the lock
-        return False
 
 
 def write_experiment_report(out_dir, base, config: ExperimentConfig, *, workers: int = 2,
@@ -857,14 +729,14 @@ def write_experiment_report(out_dir, base, config: ExperimentConfig, *, workers:
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    with _FolderLock(out):
+    with FolderLock(out):
         return _run_and_report(out, base, config, workers, scheduler, progress, shard)
 
 
 def _run_and_report(out: Path, base, config: ExperimentConfig, workers: int, scheduler,
                     progress, shard) -> Path:
     grid = grid_fingerprint(base, config)
-    _check_grid(out, grid)
+    check_grid(out, grid)
     tasks = make_tasks(config)
     # A shard takes whole demonstrations (every N-th group from the K-th), so that a
     # demonstration's tasks still share one IK pass and their identical plant runs.
@@ -883,7 +755,7 @@ def _run_and_report(out: Path, base, config: ExperimentConfig, workers: int, sch
              + f"; running {len(todo)} on {where}")
     started = time.perf_counter()
     run_experiment(base, config, workers=workers, scheduler=scheduler, progress=progress,
-                   tasks=todo, on_record=_RecordLog(out))
+                   tasks=todo, on_record=RecordLog(out))
     meta = {"computed": len(todo), "kept": len(mine) - len(todo), "workers": where,
             "wall_s": time.perf_counter() - started}
     return _write_report(out, base, config, read_records(out), tasks, meta, progress)
@@ -901,12 +773,12 @@ def merge_experiment_reports(out_dir, sources, base, config: ExperimentConfig,
         if not (source / GRID_FILE).exists():
             raise ValueError(f"--merge {str(source)[:80]!r} holds no experiment ({GRID_FILE} "
                              "is missing)")
-        _check_grid(source, grid)
+        check_grid(source, grid)
         records.update(read_records(source))
     out.mkdir(parents=True, exist_ok=True)
-    with _FolderLock(out):
-        _check_grid(out, grid)
-        log = _RecordLog(out)
+    with FolderLock(out):
+        check_grid(out, grid)
+        log = RecordLog(out)
         held = read_records(out)
         for key, record in records.items():
             if key not in held:

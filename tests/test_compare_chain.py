@@ -170,8 +170,8 @@ def test_the_compare_report_names_its_chain_first_and_what_the_guard_did(tmp_pat
 
 
 def test_the_experiment_records_and_reports_its_chain(tmp_path):
-    from telesmooth.scripts.experiment_report import grid_fingerprint
     from telesmooth.studies.experiment import ExperimentConfig, ExperimentTask, run_task
+    from telesmooth.studies.journal import grid_fingerprint
 
     base = load_scenario(scenario_text="{haptic: {lasa_mapping: {time_scale: 4.0, "
                                        "hold_start_s: 0.5, hold_end_s: 1.0}}}")

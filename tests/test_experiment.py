@@ -423,7 +423,8 @@ def _grid():
 
 
 def test_an_interrupted_run_resumes_where_it_stopped(base, tmp_path, monkeypatch):
-    from telesmooth.scripts.experiment_report import read_records, write_experiment_report
+    from telesmooth.scripts.experiment_report import write_experiment_report
+    from telesmooth.studies.journal import read_records
 
     config, out = _grid(), tmp_path / "exp"
     tasks = make_tasks(config)
@@ -466,10 +467,10 @@ def test_a_folder_of_another_grid_is_refused(base, tmp_path, monkeypatch, capsys
     with pytest.raises(ValueError, match="the base scenario"):
         write_experiment_report(out, other_base, _grid(), workers=0,
                                 progress=lambda line: None)
-    import telesmooth.scripts.experiment_report as experiment_report
+    import telesmooth.studies.journal as journal
 
     with monkeypatch.context() as patch:
-        patch.setattr(experiment_report, "code_fingerprint", lambda: "another version")
+        patch.setattr(journal, "code_fingerprint", lambda: "another version")
         with pytest.raises(ValueError, match="the code"):
             write_experiment_report(out, base, _grid(), workers=0,
                                     progress=lambda line: None)
@@ -482,9 +483,9 @@ def test_a_folder_of_another_grid_is_refused(base, tmp_path, monkeypatch, capsys
 def test_shards_merge_into_the_report_of_the_whole_grid(base, tmp_path, monkeypatch):
     from telesmooth.scripts.experiment_report import (
         merge_experiment_reports,
-        read_records,
         write_experiment_report,
     )
+    from telesmooth.studies.journal import read_records
 
     config = _grid()
     module, fake = _fake_run_task([])
@@ -557,13 +558,14 @@ def test_without_the_originals_p_is_unknown_and_its_claims_not_tested():
 
 
 def test_two_runs_on_one_folder_are_refused(base, tmp_path, monkeypatch):
-    from telesmooth.scripts.experiment_report import _FolderLock, write_experiment_report
+    from telesmooth.scripts.experiment_report import write_experiment_report
+    from telesmooth.studies.journal import FolderLock
 
     module, fake = _fake_run_task([])
     monkeypatch.setattr(module, "iter_task_group", fake)
     out = tmp_path / "exp"
     out.mkdir()
-    with _FolderLock(out):            # another run holds the folder
+    with FolderLock(out):             # another run holds the folder
         with pytest.raises(ValueError, match="is being used by another experiment run"):
             write_experiment_report(out, base, _grid(), workers=0, progress=lambda line: None)
     assert not (out / "records.jsonl").exists()
