@@ -28,6 +28,7 @@ import sys
 from pathlib import Path
 
 from telesmooth.arms.joint_vectors import as_per_joint
+from telesmooth.scripts.formatting import log as _log
 from telesmooth.smoothing.kalman import START_PRIORS
 from telesmooth.smoothing.methods import (
     METHOD_ALIASES,
@@ -44,6 +45,8 @@ from telesmooth.smoothing.reduced_q import (
     SIGMA_STEP_RULES,
     VIOLATION_TRIGGERS,
     ReducedQConfig,
+)
+from telesmooth.smoothing.sigma_store import (
     load_operator_sigma,
     save_operator_sigma,
     stored_operators,
@@ -211,7 +214,7 @@ def run_smooth(args) -> int:
         metrics_path = None if args.metrics is None else outputs.file("--metrics", args.metrics)
         store_path = (None if args.sigma_store is None
                       else outputs.file("--sigma-store", args.sigma_store))
-        trajectory = read_joint_csv(args.input, expected_dt_s=args.dt)
+        trajectory = read_joint_csv(args.input, expected_dt_s=args.dt, warn=_log)
         _refuse_a_haptic_recording(args.input, trajectory.joint_names)
         try:
             result, settings, extra = _smooth(args, trajectory)

@@ -10,7 +10,6 @@ import array
 import csv
 import math
 import re
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -73,7 +72,7 @@ class JointTrajectory:
 
 
 def read_joint_csv(path, *, expected_dt_s: float | None = None,
-                   reserved_names=RESERVED_JOINT_NAMES) -> JointTrajectory:
+                   reserved_names=RESERVED_JOINT_NAMES, warn=None) -> JointTrajectory:
     """Reads and validates a joint trajectory CSV.
 
     Args:
@@ -81,6 +80,8 @@ def read_joint_csv(path, *, expected_dt_s: float | None = None,
         expected_dt_s: if given, the file's time step must equal it (relative 1e-6).
         reserved_names: column names a joint may not have (by default ``sent_t``, the
             column the smoothed output adds: a joint of that name would be ambiguous there).
+        warn: called with a line for each joint whose values look like degrees (the file is
+            read as radians all the same); None: not said.
 
     Raises:
         ValueError: missing/odd header, duplicate, empty or reserved joint names, short rows,
@@ -119,13 +120,10 @@ def read_joint_csv(path, *, expected_dt_s: float | None = None,
                          f"{float(positions[row, col])!r} rad is beyond ±{MAX_ABS_JOINT_RAD:g} "
                          "rad; joint values are angles in radians")
     large = np.abs(positions).max(axis=0) > DEGREES_SUSPICION_RAD
-    for index in np.flatnonzero(large):
-        print(
-            f"warning: {path}: joint {quote(names[index])} reaches "
-            f"{np.abs(positions[:, index]).max():.3g} rad; values are read as radians "
-            "(were degrees meant?)",
-            file=sys.stderr,
-        )
+    for index in np.flatnonzero(large) if warn is not None else ():
+        warn(f"warning: {path}: joint {quote(names[index])} reaches "
+             f"{np.abs(positions[:, index]).max():.3g} rad; values are read as radians "
+             "(were degrees meant?)")
     return JointTrajectory(t_s=t, positions=positions, joint_names=tuple(names))
 
 

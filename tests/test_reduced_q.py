@@ -16,12 +16,14 @@ from telesmooth.smoothing.metrics import finite_differences
 from telesmooth.smoothing.model import JerkModel
 from telesmooth.smoothing.reduced_q import (
     REDUCED_Q_VARIANTS,
-    SIGMA_FILE_FORMAT,
     SIGMA_STEP_RULES,
     VIOLATION_TRIGGERS,
     OnlineCks,
     ReducedQConfig,
     decrease_sigma,
+)
+from telesmooth.smoothing.sigma_store import (
+    SIGMA_FILE_FORMAT,
     load_operator_sigma,
     save_operator_sigma,
 )
