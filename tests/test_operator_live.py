@@ -211,45 +211,31 @@ _PAGE_PROBE = """
 
 def test_driven_from_a_real_browser(tmp_path):
     executable = _chromium_or_skip()
-    playwright = pytest.importorskip("playwright.sync_api")
+    pytest.importorskip("playwright.sync_api")
+    from telesmooth.scripts.browser_operator import ConsolePage
     # Ended by SIGINT once the page is shot: however long the software-rendered page takes
     # to load, the session still runs when the picture is taken.
     process, out, url, started = _start(tmp_path, 300.0, 7790)
     marks = {}
     shot = tmp_path / "console.png"
-    with playwright.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=executable, args=[
-            "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-sandbox",
-            "--disable-background-networking", "--disable-component-update",
-            "--disable-sync", "--no-first-run"])
-        try:
-            # Tall enough for the whole control panel (scene tree, controls, legend, status).
-            page = browser.new_page(viewport={"width": 1024, "height": 900})
-            page.goto(url)
-            page.wait_for_function("() => window.viewer && viewer.scene_tree && "
-                                   "viewer.scene_tree.find(['operator','planning','link1'])"
-                                   ".object", timeout=60_000)
-            page.evaluate(_PAGE_PROBE)
-            page.evaluate("() => viewer.gui.open()")     # the control panel, with the status
-            time.sleep(0.5)
-            marks["space"] = time.monotonic() - started
-            page.keyboard.press("Space")
-            time.sleep(0.3)
-            marks["d"] = time.monotonic() - started
-            end = time.monotonic() + 2.0
-            while time.monotonic() < end:   # held down: the keyboard's auto-repeat
-                page.keyboard.press("KeyD")
-                time.sleep(0.033)
-            time.sleep(2.0)
-            # The picture is of a live page: the session still runs (a slow page load once
-            # left only the page's "no connection" banner over the last frame).
-            assert process.poll() is None, "the session ended before the screenshot"
-            page.screenshot(path=str(shot))
-            probe = page.evaluate("() => window.__probe")
-            rows = page.evaluate("() => Array.from(document.querySelectorAll('.property-name'))"
-                                 ".map(e => e.textContent)")
-        finally:
-            browser.close()
+    # Tall enough for the whole control panel (scene tree, controls, legend, status).
+    with ConsolePage(url, chromium=executable, viewport=(1024, 900)) as console:
+        page = console.page
+        page.evaluate(_PAGE_PROBE)
+        time.sleep(0.5)
+        marks["space"] = time.monotonic() - started
+        console.press("Space")
+        time.sleep(0.3)
+        marks["d"] = time.monotonic() - started
+        console.hold("KeyD", 2.0)       # held down: the keyboard's auto-repeat
+        time.sleep(2.0)
+        # The picture is of a live page: the session still runs (a slow page load once left
+        # only the page's "no connection" banner over the last frame).
+        assert process.poll() is None, "the session ended before the screenshot"
+        shot.write_bytes(console.screenshot())
+        probe = page.evaluate("() => window.__probe")
+        rows = page.evaluate("() => Array.from(document.querySelectorAll('.property-name'))"
+                             ".map(e => e.textContent)")
     assert process.stop() == 0, process.log_path.read_text()
     keep = os.environ.get("TELESMOOTH_SCREENSHOT_DIR")
     if keep:
