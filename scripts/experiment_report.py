@@ -30,7 +30,7 @@ from telesmooth.arms.self_contact import CLEARANCE_M
 from telesmooth.atomic_files import write_text
 from telesmooth.diagrams.scenario import describe_chain
 from telesmooth.scripts.figures import FigureWriter
-from telesmooth.scripts.formatting import limit_ratio
+from telesmooth.scripts.formatting import figures_table, limit_ratio, mean_worst_cell
 from telesmooth.scripts.formatting import log as _log
 from telesmooth.scripts.verdict_report import paper_verdicts_markdown, variant_figures_markdown
 from telesmooth.studies.claims import (
@@ -81,24 +81,6 @@ _COLUMNS = (
 )
 
 
-def _format(value, fmt: str) -> str:
-    return limit_ratio(value) if fmt == "ratio" else fmt.format(value)
-
-
-def _cell(stats: dict, scale: float, fmt: str, figures: dict | None = None) -> str:
-    unsettled = ""
-    if fmt == "settling":
-        # Runs still moving at their end have no settling time: counted, not averaged.
-        settled = (figures or {}).get("settled")
-        if settled and settled["mean"] is not None and settled["mean"] < 1.0:
-            unsettled = f"; {round((1 - settled['mean']) * settled['n'])} not settled"
-        fmt = "{:.1f}"
-    mean, worst = stats["mean"], stats["worst"]
-    if mean is None:
-        return "n/a" + unsettled
-    return f"{_format(scale * mean, fmt)} ({_format(scale * worst, fmt)}){unsettled}"
-
-
 def _least_deformation_cell(row) -> str:
     if not row or not row["n"]:
         return "n/a"
@@ -111,17 +93,10 @@ def main_table_markdown(summary: dict) -> str:
     each method's E_def beside offline-hard's (the least the limits force), demonstration by
     demonstration (mean (largest) ratio; demonstrations where offline-hard deforms nothing
     are counted apart)."""
-    main = summary["main"]
     least = summary.get("least_deformation") or {}
-    extra = [f"E_def / {LEAST_DEFORMATION}"] if least else []
-    lines = ["| method | " + " | ".join([title for title, *_ in _COLUMNS] + extra) + " |",
-             "|---|" + "---|" * (len(_COLUMNS) + len(extra))]
-    for label, figures in main.items():
-        cells = [_cell(figures[key], scale, fmt, figures) for _, key, scale, fmt in _COLUMNS]
-        if least:
-            cells.append(_least_deformation_cell(least.get(label)))
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    extra = ((f"E_def / {LEAST_DEFORMATION}", lambda label: _least_deformation_cell(
+        least.get(label))) if least else None)
+    return figures_table(summary["main"], _COLUMNS, extra)
 
 
 _GUARD_COLUMNS = (
@@ -136,17 +111,9 @@ _GUARD_COLUMNS = (
 def guard_table_markdown(summary: dict) -> str:
     """Deployed chain: what the onboard link guard did per method, mean (worst case) over
     the demonstrations; "" when the runs had no guard (the paper's chain)."""
-    main = summary["main"]
-    if not any("guard_limited" in figures for figures in main.values()):
-        return ""
-    lines = ["| method | " + " | ".join(title for title, *_ in _GUARD_COLUMNS) + " |",
-             "|---|" + "---:|" * len(_GUARD_COLUMNS)]
-    for label, figures in main.items():
-        if "guard_limited" in figures:
-            lines.append(f"| {label} | " + " | ".join(
-                _cell(figures[key], scale, fmt) for _, key, scale, fmt in _GUARD_COLUMNS)
-                + " |")
-    return "\n".join(lines)
+    guarded = {label: figures for label, figures in summary["main"].items()
+               if "guard_limited" in figures}
+    return figures_table(guarded, _GUARD_COLUMNS) if guarded else ""
 
 
 _STUDY_TITLES = {"sigma0": "Online-CKS σ_0", "sigma_min": "Online-CKS σ_min",
@@ -169,7 +136,7 @@ def _sensitivity_markdown(sensitivity: dict) -> str:
     for study, rows in sensitivity.items():
         for row in rows:
             lines.append(f"| {_STUDY_TITLES.get(study, study)} | {row['value']:g} | " + " | ".join(
-                _cell(row[key], scale, fmt) for _, key, scale, fmt in keys) + " |")
+                mean_worst_cell(row[key], scale, fmt) for _, key, scale, fmt in keys) + " |")
     return "\n".join(lines)
 
 

@@ -5,6 +5,7 @@ figures, C1's figures, every pair, and the figures of each method under each rea
 
 from __future__ import annotations
 
+from telesmooth.scripts.formatting import figures_table
 from telesmooth.studies.claims import (
     C8_MARGIN,
     DEFAULT_VARIANT,
@@ -198,16 +199,4 @@ def variant_figures_markdown(summary: dict, carried: dict | None = None) -> str:
     rows = dict(summary["main"])
     if carried:
         rows["online-cks carried"] = carried
-    lines = ["| method | " + " | ".join(c[0] for c in _VARIANT_COLUMNS) + " |",
-             "|---|" + "---:|" * len(_VARIANT_COLUMNS)]
-    for label, figures in rows.items():
-        cells = []
-        for _, key, scale, fmt in _VARIANT_COLUMNS:
-            stats = figures.get(key)
-            if not stats or stats.get("mean") is None:
-                cells.append("—")
-                continue
-            cells.append(f"{fmt.format(scale * stats['mean'])} "
-                         f"({fmt.format(scale * stats['worst'])})")
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    return figures_table(rows, _VARIANT_COLUMNS)

@@ -38,7 +38,7 @@ def test_the_operator_is_named(text, expected):
 
 def test_a_run_still_moving_at_its_end_is_not_given_a_settling_time():
     from telesmooth.scripts.compare_report import _cell as compare_cell
-    from telesmooth.scripts.experiment_report import _cell as experiment_cell
+    from telesmooth.scripts.formatting import mean_worst_cell as experiment_cell
 
     assert compare_cell({"settling_time_s": float("nan"), "settled": 0.0}, "settling_time_s",
                         "settling") == "not settled in the run"
@@ -49,6 +49,9 @@ def test_a_run_still_moving_at_its_end_is_not_given_a_settling_time():
     assert experiment_cell(stats, 1.0, "settling", figures) == "1.2 (2.0); 2 not settled"
     assert experiment_cell(stats, 1.0, "settling", {"settled": {"mean": 1.0, "n": 4}}) == \
         "1.2 (2.0)"
+    # A figure the records lack (e.g. a reading older records did not measure); no value.
+    assert experiment_cell(None, 1.0, "{:.1f}") == "—"
+    assert experiment_cell({"mean": None, "worst": None}, 1.0, "{:.1f}") == "n/a"
 
 
 def test_the_pre_simulators_distance_at_its_horizon_is_a_lower_bound():
