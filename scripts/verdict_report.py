@@ -117,12 +117,18 @@ def _kf_forms(result: dict) -> list[str]:
             lines.append(f"| {cell} | `{form}` | " + " | ".join(row[n] for n in names)
                          + f" | {'yes' if row['all three'] else 'no'} |")
     found = {form: where for form, where in result["kf_reproduces"].items() if where}
-    sentence = ("No KF form reproduces the paper's figures 8, 10 and 11 together in any cell: "
-                "the KF that deforms most (figs. 8 and 10) is not the one that improves the "
-                "dynamic response (fig. 11)." if not found else
-                " ".join(f"`{form}` reproduces all three in {', '.join(where)}."
-                         for form, where in found.items()))
-    return [sentence, "", "\n".join(lines)]
+    sentences = ([f"`{form}` reproduces all three in {' and '.join(where)}."
+                  for form, where in found.items()] if found else
+                 ["No KF form reproduces the paper's figures 8, 10 and 11 together in any "
+                  "cell."])
+    for form in next(iter(forms.values())):
+        deforms = [cell for cell in cells if forms[cell][form][names[0]] == "holds"
+                   and forms[cell][form][names[1]] == "holds"]
+        improves = [cell for cell in cells if forms[cell][form][names[2]] == "holds"]
+        sentences.append(f"`{form}` deforms most (figs. 8 and 10) in "
+                         f"{' and '.join(deforms) or 'no cell'}, and improves e (fig. 11) in "
+                         f"{' and '.join(improves) or 'no cell'}.")
+    return [" ".join(sentences), "", "\n".join(lines)]
 
 
 def _c1_table(result: dict) -> str:

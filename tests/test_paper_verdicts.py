@@ -136,6 +136,12 @@ def test_a_verdict_that_flips_with_the_kf_form_names_it():
     assert forms["kf"]["fig. 10 (C3)"] == "does not hold" and not forms["kf"]["all three"]
     assert forms["kf-predictor"]["all three"]
     assert result["kf_reproduces"] == {"kf": [], "kf-predictor": ["lab, 1×"]}
+    from telesmooth.scripts.verdict_report import paper_verdicts_markdown
+
+    text = "\n".join(paper_verdicts_markdown(result))
+    assert "`kf-predictor` reproduces all three in lab, 1×." in text
+    assert "`kf` deforms most (figs. 8 and 10) in no cell, and improves e (fig. 11) in lab, 1×." \
+        in text
 
 
 def test_a_verdict_that_flips_with_e_at_100_hz_names_it():
