@@ -39,7 +39,7 @@ sender, carried by the link (``scenario.link.faults``: a perfect link by default
 the onboard receiver and passed through the onboard link guard, which keeps what reaches the
 robot within the limits; the robot is built as the onboard process builds it (its
 interpolator polls every 10 ms and starts a ramp at the poll that sees a new command). The
-guard's loggers (:func:`~telesmooth.diagrams.teleoperation.add_link_loggers`) and the ramp
+guard's loggers (:func:`~telesmooth.diagrams.teleoperation.AddLinkLoggers`) and the ramp
 starts are logged every receiver poll; :func:`playback_guard_record` reads what the guard did.
 """
 
@@ -63,12 +63,12 @@ from telesmooth.diagrams.scenario import CHAINS, Scenario
 from telesmooth.diagrams.simulation import GuardRecord, guard_record
 from telesmooth.diagrams.teleoperation import (
     AddDeployedLink,
+    AddLinkLoggers,
     AddOnboardRobot,
+    ConnectUplinkToRobot,
     GroundHandles,
-    add_link_loggers,
-    connect_uplink_to_robot,
 )
-from telesmooth.systems.flexible_arm import FlexibleJointArm, make_simulator
+from telesmooth.systems.flexible_arm import FlexibleJointArm, MakeSimulator
 from telesmooth.systems.laser_tracker import tracker_record
 from telesmooth.systems.planned_path_source import PlannedPathSource
 from telesmooth.systems.uplink import Uplink
@@ -155,7 +155,7 @@ def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q
     Returns:
         (source, uplink, robot, logs): ``logs`` as :class:`OfflinePlaybackHandles`, and
         deployed also the loggers of
-        :func:`~telesmooth.diagrams.teleoperation.add_link_loggers` and :data:`RAMP_START_LOG`,
+        :func:`~telesmooth.diagrams.teleoperation.AddLinkLoggers` and :data:`RAMP_START_LOG`,
         every receiver poll. Run the diagram with :func:`simulate_playback`, which returns the
         tracker's record (with the continuous plant the tracker is not a stage of the diagram).
 
@@ -197,7 +197,7 @@ def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q
             joint_names=tuple(arm.joint_names))
         _, receiver, guard, _ = AddDeployedLink(builder, ground, scenario, robot)
     else:
-        connect_uplink_to_robot(builder, uplink, robot)
+        ConnectUplinkToRobot(builder, uplink, robot)
     ports = {"sequence_number": uplink.get_sequence_number_output_port(),
              "send_time": uplink.get_send_time_output_port(),
              "q_sent": uplink.get_q_sent_output_port(),
@@ -207,7 +207,7 @@ def AddPathPlayback(builder: DiagramBuilder, scenario: Scenario, positions, *, q
     logs = {name: LogVectorOutput(port, builder, period) for name, port in ports.items()}
     if deployed:
         poll = scenario.command_receiver.poll_period_s
-        logs.update(add_link_loggers(builder, receiver, guard, poll))
+        logs.update(AddLinkLoggers(builder, receiver, guard, poll))
         # The ramps start at the interpolator's 10 ms polls: logged at the receiver's.
         logs[RAMP_START_LOG] = LogVectorOutput(robot.GetOutputPort("command_ramp"), builder,
                                                poll)
@@ -349,7 +349,7 @@ def simulate_playback(diagram, robot: FlexibleJointArm, loggers: dict, duration_
             or not math.isfinite(duration_s) or duration_s <= 0.0:
         raise ValueError(f"duration_s = {duration_s!r} must be a finite time > 0 (s)")
     duration_s = float(duration_s)
-    simulator = make_simulator(diagram, robot.config)
+    simulator = MakeSimulator(diagram, robot.config)
     simulator.Initialize()
     if robot.tracker_in_diagram:
         # A discrete plant (no dense output): the tracker's own event took the samples.
@@ -370,7 +370,7 @@ def simulate_playback(diagram, robot: FlexibleJointArm, loggers: dict, duration_
         states = integrator.StopDenseIntegration().vector_values(times).T[:, indices]
     except RuntimeError:
         # No dense output (see above): again from the start, stopping at every instant.
-        simulator = make_simulator(diagram, robot.config)
+        simulator = MakeSimulator(diagram, robot.config)
         simulator.Initialize()
         context = simulator.get_context()
         states = np.empty((times.size, indices.size))

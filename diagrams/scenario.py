@@ -2,7 +2,7 @@
 
 A :class:`Scenario` composes the config dataclass of each stage plus the run settings (arm,
 operator source, LCM URL, duration). Scenario files are mappings from scenario names to
-(partial) scenarios; :func:`load_scenario` picks one, applies text overrides and builds the
+(partial) scenarios; :func:`LoadScenario` picks one, applies text overrides and builds the
 dataclasses through their constructors, so every value is validated as in code and unknown
 keys are errors (see :mod:`telesmooth.typed_yaml`).
 
@@ -74,7 +74,7 @@ __all__ = [
     "Scenario",
     "describe_chain",
     "describe_operator",
-    "load_scenario",
+    "LoadScenario",
     "make_haptic_recording",
 ]
 
@@ -517,7 +517,7 @@ def check_ignored_keys(data: Mapping, scenario: Scenario) -> None:
                              f"({setting} is {current!r}{default})")
 
 
-def load_scenario(*, filename=None, scenario_name: str | None = None,
+def LoadScenario(*, filename=None, scenario_name: str | None = None,
                   scenario_text: str | None = None,
                   option_names: Mapping[str, str] | None = None,
                   overrides: Mapping | None = None) -> Scenario:

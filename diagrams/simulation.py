@@ -27,7 +27,7 @@ from telesmooth.diagrams.scenario import (
 from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram, uplink_packets
 from telesmooth.diagrams.visualization import save_meshcat_recording, start_meshcat_recording
 from telesmooth.smoothing.metrics import smoothing_metrics, tracking_errors
-from telesmooth.systems.flexible_arm import make_simulator
+from telesmooth.systems.flexible_arm import MakeSimulator
 from telesmooth.systems.laser_tracker import tracker_record
 
 __all__ = ["GuardRecord", "ResponseErrors", "SimulationRecord", "ground_fields", "guard_metrics",
@@ -78,7 +78,7 @@ class GuardRecord:
 
 def guard_record(logs: dict, context, poll_period_s: float) -> GuardRecord:
     """The :class:`GuardRecord` of a run from the loggers of
-    :func:`~telesmooth.diagrams.teleoperation.add_link_loggers` (logged every poll)."""
+    :func:`~telesmooth.diagrams.teleoperation.AddLinkLoggers` (logged every poll)."""
     def data(name):
         return logs[name].FindLog(context).data()
 
@@ -246,7 +246,7 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
     """
     handles = MakeTeleoperationDiagram(scenario, meshcat=meshcat)
     duration_s = run_duration_s(scenario, handles.ground.recording, duration_s)
-    simulator = make_simulator(handles.diagram, scenario.onboard)
+    simulator = MakeSimulator(handles.diagram, scenario.onboard)
     simulator.Initialize()
     start, cpu_start = time.perf_counter(), time.process_time()
     # Ticks at exactly duration_s are not run by AdvanceTo; advance just past the last one.
@@ -275,7 +275,7 @@ def simulate(scenario: Scenario, *, duration_s: float | None = None, meshcat=Non
 
 def ground_fields(handles, context) -> dict:
     """The ground station's part of a :class:`SimulationRecord` from the loggers of
-    :func:`~telesmooth.diagrams.teleoperation.add_ground_loggers` (one process or the ground
+    :func:`~telesmooth.diagrams.teleoperation.AddGroundLoggers` (one process or the ground
     process): the targets, collision flags, packets and the 4 Hz ticks, and the start pose."""
     def log(name):
         return handles.logs[name].FindLog(context)

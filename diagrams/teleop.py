@@ -26,18 +26,18 @@ from pydrake.systems.primitives import LogVectorOutput
 from telesmooth.diagrams.scenario import Scenario
 from telesmooth.diagrams.teleoperation import (
     AddDeployedLink,
+    AddGroundLoggers,
     AddGroundStation,
     AddJointStatusSender,
+    AddLinkLoggers,
     AddOnboardCommandPath,
+    AddOnboardLoggers,
     AddOnboardRobot,
     GroundHandles,
     OnboardHandles,
-    add_ground_loggers,
-    add_link_loggers,
-    add_onboard_loggers,
 )
 from telesmooth.lcm_types import lcmt_onboard_joint_status
-from telesmooth.systems.flexible_arm import make_simulator
+from telesmooth.systems.flexible_arm import MakeSimulator
 from telesmooth.systems.link_channel import LinkChannel
 from telesmooth.systems.packet_replay import PacketLog, PacketReplay
 from telesmooth.systems.robot_predictor import PredictorReplica, RobotPredictor
@@ -105,7 +105,7 @@ def MakePredictorReplica(scenario: Scenario, *, initial_position_rad,
     diagram.set_name("predicted_robot")
     config = robot.config
     return PredictorReplica(diagram=diagram, robot=robot, packets=log,
-                            make_simulator=lambda d: make_simulator(d, config))
+                            MakeSimulator=lambda d: MakeSimulator(d, config))
 
 
 def MakeTeleopDiagram(scenario: Scenario, *, console=None, display=None,
@@ -161,10 +161,10 @@ def MakeTeleopDiagram(scenario: Scenario, *, console=None, display=None,
         builder.Connect(ground.uplink.get_q_sent_output_port(),
                         console.get_q_anchor_input_port())
         builder.Connect(ground.fifo.get_holding_output_port(), console.get_anchor_input_port())
-    logs = add_ground_loggers(builder, ground, scenario)
-    logs.update(add_onboard_loggers(builder, robot, tracker_period))
+    logs = AddGroundLoggers(builder, ground, scenario)
+    logs.update(AddOnboardLoggers(builder, robot, tracker_period))
     poll = scenario.command_receiver.poll_period_s
-    logs.update(add_link_loggers(builder, receiver, guard, poll))
+    logs.update(AddLinkLoggers(builder, receiver, guard, poll))
     haptic_period = scenario.haptic.period_s
     logs["hand_pose"] = LogVectorOutput(ground.haptic.get_pose_desired_output_port(), builder,
                                         haptic_period)

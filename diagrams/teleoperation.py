@@ -368,14 +368,14 @@ def AddOnboardCommandPath(builder: DiagramBuilder, scenario: Scenario, *, packet
     return receiver, guard
 
 
-def connect_uplink_to_robot(builder, uplink: Uplink, robot: FlexibleJointArm) -> None:
+def ConnectUplinkToRobot(builder, uplink: Uplink, robot: FlexibleJointArm) -> None:
     """The uplink's held command drives the robot directly; its send time tells the
     interpolator when each command was issued, so the ramp starts at the send time."""
     builder.Connect(uplink.get_q_sent_output_port(), robot.GetInputPort("q_commanded"))
     builder.Connect(uplink.get_send_time_output_port(), robot.GetInputPort("command_time"))
 
 
-def add_link_loggers(builder, receiver: JointCommandReceiver, guard: LinkGuard,
+def AddLinkLoggers(builder, receiver: JointCommandReceiver, guard: LinkGuard,
                      period_s: float) -> dict:
     """Loggers of the onboard command path: accepted commands, counts, guard output/mode."""
     return {
@@ -400,7 +400,7 @@ def add_link_loggers(builder, receiver: JointCommandReceiver, guard: LinkGuard,
     }
 
 
-def add_ground_loggers(builder, ground: GroundHandles, scenario: Scenario) -> dict:
+def AddGroundLoggers(builder, ground: GroundHandles, scenario: Scenario) -> dict:
     """Loggers of the ground station's targets, flags, packets, FIFO output and σ."""
     haptic_period = scenario.haptic.period_s
     tick = scenario.uplink.period_s
@@ -450,7 +450,7 @@ def uplink_packets(handles: TeleoperationHandles, context):
             logs["state_sent"].FindLog(context).data().T[rows])
 
 
-def add_onboard_loggers(builder, robot: FlexibleJointArm, period_s: float) -> dict:
+def AddOnboardLoggers(builder, robot: FlexibleJointArm, period_s: float) -> dict:
     """Loggers of the robot: "tracker", the laser tracker's samples with the time each was
     taken (read it with :func:`~telesmooth.systems.laser_tracker.tracker_record`: a logger
     stamps a held sample one period after it was measured), "command_rejected", and
@@ -491,17 +491,17 @@ def MakeTeleoperationDiagram(scenario: Scenario, *, meshcat=None) -> Teleoperati
     logs = {}
     if deployed:
         _, receiver, guard, link = AddDeployedLink(builder, ground, scenario, robot)
-        logs.update(add_link_loggers(builder, receiver, guard,
+        logs.update(AddLinkLoggers(builder, receiver, guard,
                                      scenario.command_receiver.poll_period_s))
         logs["link_counts"] = LogVectorOutput(link.get_link_counts_output_port(), builder,
                                               scenario.uplink.period_s)
     else:
-        connect_uplink_to_robot(builder, ground.uplink, robot)
+        ConnectUplinkToRobot(builder, ground.uplink, robot)
     if meshcat is not None:
         from telesmooth.diagrams.visualization import AddRobotVisualizer
         AddRobotVisualizer(builder, robot, meshcat)
-    logs.update(add_ground_loggers(builder, ground, scenario))
-    logs.update(add_onboard_loggers(builder, robot, scenario.onboard.tracker.period_s))
+    logs.update(AddGroundLoggers(builder, ground, scenario))
+    logs.update(AddOnboardLoggers(builder, robot, scenario.onboard.tracker.period_s))
     diagram = builder.Build()
     diagram.set_name("teleoperation")
     return TeleoperationHandles(
@@ -587,7 +587,7 @@ def MakeGroundDiagram(scenario: Scenario, *, lcm: DrakeLcm, session_id: int = 0,
                     monitor.GetInputPort("telemetry_count"))
     builder.Connect(ground.uplink.get_sequence_number_output_port(),
                     monitor.GetInputPort("sequence_number"))
-    logs = add_ground_loggers(builder, ground, scenario)
+    logs = AddGroundLoggers(builder, ground, scenario)
     for name in ("link_status", "telemetry_age", "unacknowledged", "onboard_guard_mode",
                  "onboard_counts", "stream_distance"):
         logs[name] = LogVectorOutput(monitor.GetOutputPort(name), builder, 0.05)
@@ -674,8 +674,8 @@ def MakeOnboardDiagram(scenario: Scenario, *, lcm: DrakeLcm, initial_position_ra
                                 publish_period=tracker_period,
                                 publish_offset=scenario.publish_offset_s))
     builder.Connect(status.get_lcm_message_output_port(), status_publisher.get_input_port())
-    logs = add_onboard_loggers(builder, robot, tracker_period)
-    logs.update(add_link_loggers(builder, receiver, guard,
+    logs = AddOnboardLoggers(builder, robot, tracker_period)
+    logs.update(AddLinkLoggers(builder, receiver, guard,
                                  scenario.command_receiver.poll_period_s))
     logs["last_command_session"] = LogVectorOutput(
         receiver.get_last_command_session_output_port(), builder,

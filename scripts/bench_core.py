@@ -434,9 +434,9 @@ class CallbackTimers:
 def _load_chain_scenario(name: str, chain: str = "deployed"):
     import dataclasses
 
-    from telesmooth.diagrams.scenario import load_scenario
+    from telesmooth.diagrams.scenario import LoadScenario
 
-    return dataclasses.replace(load_scenario(scenario_name=name), chain=chain)
+    return dataclasses.replace(LoadScenario(scenario_name=name), chain=chain)
 
 
 def _chain_cell(name: str, duration_s: float | None, chain: str = "deployed") -> dict:
@@ -483,13 +483,13 @@ def _chain_shares_cell(name: str, duration_s: float | None, chain: str = "deploy
     """The chain run again with a timer around every Python callback: CPU time per stage."""
     from telesmooth.diagrams.simulation import run_duration_s
     from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram
-    from telesmooth.systems.flexible_arm import make_simulator
+    from telesmooth.systems.flexible_arm import MakeSimulator
 
     scenario = _load_chain_scenario(name, chain)
     with CallbackTimers() as timers:
         handles = MakeTeleoperationDiagram(scenario)
     duration = run_duration_s(scenario, handles.ground.recording, duration_s)
-    simulator = make_simulator(handles.diagram, scenario.onboard)
+    simulator = MakeSimulator(handles.diagram, scenario.onboard)
     simulator.Initialize()
     timers.seconds.clear()
     timers.calls.clear()
@@ -510,7 +510,7 @@ def _bare_plant_cell(arm: str, time_step_s: float, duration_s: float) -> dict:
     from pydrake.systems.primitives import Multiplexer, Sine
 
     from telesmooth.arms.drake_models import add_arm
-    from telesmooth.systems.flexible_arm import FlexibleArmConfig, make_simulator
+    from telesmooth.systems.flexible_arm import FlexibleArmConfig, MakeSimulator
 
     config = FlexibleArmConfig(arm=arm, time_step_s=time_step_s)
     description = config.arm_description
@@ -529,7 +529,7 @@ def _bare_plant_cell(arm: str, time_step_s: float, duration_s: float) -> dict:
     builder.Connect(set_point.get_output_port(0), state.get_input_port(0))
     builder.Connect(set_point.get_output_port(1), state.get_input_port(1))
     builder.Connect(state.get_output_port(), plant.get_desired_state_input_port(instance))
-    simulator = make_simulator(builder.Build(), config)
+    simulator = MakeSimulator(builder.Build(), config)
     simulator.Initialize()
     wall, cpu = time.perf_counter(), time.process_time()
     simulator.AdvanceTo(duration_s)
@@ -607,10 +607,10 @@ def _experiment_scenario(shape: str, demo: int, time_step_s: float | None):
     import dataclasses
     import zlib
 
-    from telesmooth.diagrams.scenario import load_scenario
+    from telesmooth.diagrams.scenario import LoadScenario
     from telesmooth.studies.experiment import ExperimentConfig
 
-    base = load_scenario(scenario_name="Defaults")
+    base = LoadScenario(scenario_name="Defaults")
     seed = zlib.crc32(f"{shape}/{demo}".encode()) & 0x7FFFFFFF
     onboard = dataclasses.replace(base.onboard, tracker=dataclasses.replace(
         base.onboard.tracker, seed=seed))
@@ -659,10 +659,10 @@ def _experiment_cell(shape: str, demo: int, time_step_s: float | None) -> dict:
 
 def _experiment_c8_cell(shape: str) -> dict:
     """One C8 task (core only: Online-CKS over the shape's 7 demonstrations, twice)."""
-    from telesmooth.diagrams.scenario import load_scenario
+    from telesmooth.diagrams.scenario import LoadScenario
     from telesmooth.studies.experiment import ExperimentConfig, ExperimentTask, run_task
 
-    base = load_scenario(scenario_name="Defaults")
+    base = LoadScenario(scenario_name="Defaults")
     cpu = time.process_time()
     run_task(ExperimentTask(index=0, kind="c8", shape=shape, demo=-1, method="online-cks",
                             label="online-cks C8", study="c8"), base, ExperimentConfig())

@@ -489,7 +489,7 @@ def _load_scenario(args, overrides=None):
     """The scenario of the scenario options; ``--on-collision`` and ``--chain`` (and the
     caller's ``overrides``) are merged into it before it is built and checked, so a key they
     make unread is refused like any other."""
-    from telesmooth.diagrams.scenario import load_scenario
+    from telesmooth.diagrams.scenario import LoadScenario
     from telesmooth.typed_yaml import merge_data
 
     options = {}
@@ -500,7 +500,7 @@ def _load_scenario(args, overrides=None):
         options["chain"] = chain
     options = merge_data(options, overrides or {})
     try:
-        return load_scenario(filename=args.scenario, scenario_name=args.scenario_name,
+        return LoadScenario(filename=args.scenario, scenario_name=args.scenario_name,
                              scenario_text=args.scenario_text, option_names=_SCENARIO_OPTIONS,
                              overrides=options or None)
     except ValueError as error:

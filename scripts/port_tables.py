@@ -61,7 +61,7 @@ def _diagrams():
 
     from telesmooth.diagrams.offline_planning import plan_offline
     from telesmooth.diagrams.offline_playback import MakeOfflinePlaybackDiagram
-    from telesmooth.diagrams.scenario import initial_position, load_scenario
+    from telesmooth.diagrams.scenario import LoadScenario, initial_position
     from telesmooth.diagrams.teleop import MakePredictorReplica
     from telesmooth.diagrams.teleoperation import (
         MakeGroundDiagram,
@@ -74,11 +74,11 @@ def _diagrams():
     lcm = DrakeLcm("memq://")
     meshcat = Meshcat(MeshcatParams(host="127.0.0.1"))       # this machine only
     for name in ("Defaults", "OneOfEverything"):
-        scenario = load_scenario(scenario_name=name, scenario_text="{period_mean: true}")
+        scenario = LoadScenario(scenario_name=name, scenario_text="{period_mean: true}")
         joints = len(scenario.arm_description.joint_names)
         for chain in ("deployed", "paper"):
             yield joints, MakeTeleoperationDiagram(dataclasses.replace(scenario, chain=chain))
-        device = load_scenario(overrides={"arm": scenario.arm, "haptic": {"source": "lcm"}})
+        device = LoadScenario(overrides={"arm": scenario.arm, "haptic": {"source": "lcm"}})
         yield joints, MakeGroundDiagram(device, lcm=lcm)
         yield joints, MakeOnboardDiagram(scenario, lcm=lcm)
         live = console_scenario(scenario)

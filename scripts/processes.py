@@ -279,7 +279,7 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
     from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
     from telesmooth.link.session import new_epoch
     from telesmooth.link.udpm_receiver import UdpmReceiver
-    from telesmooth.systems.flexible_arm import make_simulator
+    from telesmooth.systems.flexible_arm import MakeSimulator
     from telesmooth.systems.laser_tracker import tracker_record
     from telesmooth.systems.link_guard import GUARD_MODES
 
@@ -297,7 +297,7 @@ def run_onboard(scenario, *, lcm_url: str, duration_s: float, realtime: float,
                                  uplink_lcm=uplink_lcm, onboard_epoch=epoch)
     _log(f"onboard: listening on {lcm_url} for {duration_s:.2f} s (authentication "
          f"{scenario.command_receiver.authentication}, epoch {epoch:013x})")
-    simulator = make_simulator(handles.diagram, scenario.onboard)
+    simulator = MakeSimulator(handles.diagram, scenario.onboard)
     receiver, guard = handles.onboard.receiver, handles.onboard.guard
     subscriber = handles.diagram.GetSubsystemByName("joint_command_subscriber")
 

@@ -208,7 +208,7 @@ def run_teleop(scenario, *, host: str = "127.0.0.1", port: int | None = None,
                out: Path | None = None) -> int:
     """Runs the live chain until ``duration_s`` (None: until SIGINT/SIGTERM) and writes the
     session into ``out``."""
-    from telesmooth.systems.flexible_arm import make_simulator
+    from telesmooth.systems.flexible_arm import MakeSimulator
     from telesmooth.systems.wall_clock_monitor import WallClockMonitor
 
     scenario = console_scenario(scenario)
@@ -217,7 +217,7 @@ def run_teleop(scenario, *, host: str = "127.0.0.1", port: int | None = None,
     # A publish per haptic tick records when the tick really ran.
     monitor = WallClockMonitor(scenario.haptic.period_s, rate=max(realtime, 1e-9))
     handles, _, display = build_teleop(scenario, meshcat, monitor=monitor)
-    simulator = make_simulator(handles.diagram, scenario.onboard)
+    simulator = MakeSimulator(handles.diagram, scenario.onboard)
     if realtime > 0:
         simulator.set_target_realtime_rate(realtime)
     _announce("teleop", scenario, url)

@@ -53,7 +53,7 @@ __all__ = [
     "FlexibleJointArm",
     "INTEGRATION_SCHEMES",
     "desired_state_permutation",
-    "make_simulator",
+    "MakeSimulator",
 ]
 
 
@@ -145,7 +145,7 @@ class FlexibleArmConfig:
         integration_scheme: The error-controlled integrator of the continuous plant, one of
             :data:`INTEGRATION_SCHEMES` (drake's names). The default is
             ``"bogacki_shampine3"`` (third order with an embedded second-order error
-            estimate). Applied by :func:`make_simulator`; ignored by a discrete plant.
+            estimate). Applied by :func:`MakeSimulator`; ignored by a discrete plant.
         integration_accuracy: The integrator's target accuracy (relative, > 0 and < 1). The
             default 1e-3 keeps e, P, E_def and the link deflection within 1 % of a 1e-6
             integration (``tests/test_plant_accuracy.py``; measured ≤ 0.6 %): the steps are
@@ -595,7 +595,7 @@ class FlexibleJointArm(Diagram):
         plant.SetVelocities(plant_context, velocities)
 
 
-def make_simulator(diagram, config: FlexibleArmConfig) -> Simulator:
+def MakeSimulator(diagram, config: FlexibleArmConfig) -> Simulator:
     """A Simulator of ``diagram`` whose integrator is the one ``config`` names.
 
     ``integration_scheme`` at ``integration_accuracy``, largest step

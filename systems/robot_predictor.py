@@ -63,14 +63,14 @@ class PredictorReplica:
         robot: Its :class:`~telesmooth.systems.flexible_arm.FlexibleJointArm` (the ground's
             model of the plant; its tracker noise-free).
         packets: The log the replay reads: the predictor appends each packet the ground sends.
-        make_simulator: diagram → a Simulator with the plant's integrator
-            (:func:`~telesmooth.systems.flexible_arm.make_simulator`).
+        MakeSimulator: diagram → a Simulator with the plant's integrator
+            (:func:`~telesmooth.systems.flexible_arm.MakeSimulator`).
     """
 
     diagram: object
     robot: object
     packets: PacketLog
-    make_simulator: Callable
+    MakeSimulator: Callable
 
 
 class TelemetrySample(NamedTuple):
@@ -357,9 +357,9 @@ class RobotPredictor(LeafSystem):
     def _build(self, q0: np.ndarray) -> None:
         self._start = np.array(q0, dtype=float)
         self._replica = self._factory(q0)
-        self._synced = self._replica.make_simulator(self._replica.diagram)
-        self._ahead = self._replica.make_simulator(self._replica.diagram)
-        self._spare = self._replica.make_simulator(self._replica.diagram)
+        self._synced = self._replica.MakeSimulator(self._replica.diagram)
+        self._ahead = self._replica.MakeSimulator(self._replica.diagram)
+        self._spare = self._replica.MakeSimulator(self._replica.diagram)
         self._catchup = None
         self._synced.Initialize()
         self._ahead.get_mutable_context().SetTimeStateAndParametersFrom(
@@ -510,7 +510,7 @@ class RobotPredictor(LeafSystem):
         """A new look-ahead from the synchronised copy, brought up to now over the next
         updates (:attr:`_catchup`); the shown one runs on until it is."""
         if self._spare is None:
-            self._spare = self._replica.make_simulator(self._replica.diagram)
+            self._spare = self._replica.MakeSimulator(self._replica.diagram)
         self._catchup, self._spare = self._spare, None
         self._catchup.get_mutable_context().SetTimeStateAndParametersFrom(
             self._synced.get_context())

@@ -3,7 +3,7 @@
 Every ``import telesmooth.X…`` and ``from telesmooth.X… import …`` counts, function-local
 imports included (a cycle hidden in a function is still a cycle). The layers, low to high:
 
-    top-level modules (user_input, atomic_files, typed_yaml, compiled)
+    top-level modules (user_input, atomic_files, typed_yaml, compiled, labelled_enum)
     lcm_types → arms → smoothing, safety (pure: no pydrake.systems), console (no Drake)
     → datasets
     → link (pure Python: no Drake) → systems → diagrams → studies → scripts
@@ -24,7 +24,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 LAYERS = (
-    ("user_input", "atomic_files", "typed_yaml", "compiled"),
+    ("user_input", "atomic_files", "typed_yaml", "compiled", "labelled_enum"),
     ("lcm_types",),
     ("arms",),
     ("smoothing", "safety", "console"),

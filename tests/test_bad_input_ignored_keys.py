@@ -14,7 +14,7 @@ from telesmooth.diagrams.scenario import (
     _KEYS_READ_ONLY_WHEN,
     HAPTIC_KEY_SOURCES,
     HAPTIC_SOURCES,
-    load_scenario,
+    LoadScenario,
 )
 from telesmooth.typed_yaml import load_yaml_text
 
@@ -131,7 +131,7 @@ RULES = {
 def test_an_unread_key_is_an_error_naming_it_and_the_setting(rule):
     text, words, _ = RULES[rule]
     with pytest.raises(ValueError) as error:
-        load_scenario(scenario_text=text)
+        LoadScenario(scenario_text=text)
     message = str(error.value)
     assert message.startswith("scenario 'Defaults' with scenario_text: "), message
     for word in words:
@@ -141,7 +141,7 @@ def test_an_unread_key_is_an_error_naming_it_and_the_setting(rule):
 @pytest.mark.parametrize("rule", RULES)
 def test_the_same_key_under_a_setting_that_reads_it_loads(rule):
     _, _, text = RULES[rule]
-    load_scenario(scenario_text=text)
+    LoadScenario(scenario_text=text)
 
 
 def test_every_rule_of_the_table_is_tested_both_ways():
@@ -170,28 +170,28 @@ def test_the_source_table_names_only_known_sources_and_haptic_keys():
 
 def test_the_built_in_scenarios_still_load():
     for name in ("Defaults", "OneOfEverything"):
-        load_scenario(scenario_name=name)
+        LoadScenario(scenario_name=name)
 
 
 def test_a_key_merged_from_the_file_entry_is_checked_with_the_text_s_setting(tmp_path):
     path = tmp_path / "s.yaml"
     path.write_text("Base: {haptic: {lasa_shape: Sshape}}\n")
-    load_scenario(filename=path, scenario_name="Base")
+    LoadScenario(filename=path, scenario_name="Base")
     with pytest.raises(ValueError, match=r"scenario 'Base' with scenario_text: "
                        r"haptic.lasa_shape = 'Sshape' is only read when haptic.source = "
                        r"'lasa' \(haptic.source is 'synthetic'\)"):
-        load_scenario(filename=path, scenario_name="Base",
+        LoadScenario(filename=path, scenario_name="Base",
                       scenario_text="{haptic: {source: synthetic}}")
 
 
 def test_a_null_key_counts_as_not_given():
-    load_scenario(scenario_text="{haptic: {file: null}, smoother: {reduced_q: "
+    LoadScenario(scenario_text="{haptic: {file: null}, smoother: {reduced_q: "
                                 "{delta_sigma: null}}}")
 
 
 def test_an_invalid_deciding_value_is_reported_as_such_not_as_an_unread_key():
     with pytest.raises(ValueError) as error:
-        load_scenario(scenario_text="{haptic: {source: fil, file: my.csv}}")
+        LoadScenario(scenario_text="{haptic: {source: fil, file: my.csv}}")
     assert "haptic.source = 'fil' is not one of the 5 haptic sources" in str(error.value)
     assert "only read" not in str(error.value)
 
@@ -203,7 +203,7 @@ def test_an_invalid_deciding_value_is_reported_as_such_not_as_an_unread_key():
 def test_a_setting_the_command_line_may_still_set_decides_only_where_written(text):
     # --on-collision stop (every scenario command) and experiment --plant-step are applied
     # after the scenario is loaded: a key for them is not refused on the default.
-    load_scenario(scenario_text=text)
+    LoadScenario(scenario_text=text)
 
 
 def test_on_collision_stop_on_the_command_line_with_a_stop_key_runs(tmp_path, capsys):

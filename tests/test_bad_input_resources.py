@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 
 from telesmooth.datasets.haptic_recording import read_haptic_csv, read_haptic_npz
 from telesmooth.link.auth import load_key
-from telesmooth.smoothing.reduced_q import stored_operators
+from telesmooth.smoothing.sigma_store import stored_operators
 from telesmooth.smoothing.trajectory_io import read_joint_csv
 from telesmooth.typed_yaml import load_yaml_text
 from telesmooth.user_input import MAX_YAML_NODES, MAX_YAML_SCALAR_CHARS

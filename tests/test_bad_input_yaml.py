@@ -11,7 +11,7 @@ with the config's class name.
 import pytest
 from bad_input_helpers import assert_one_line_error, run, snapshot
 
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.typed_yaml import load_yaml_text
 
 
@@ -55,7 +55,7 @@ def test_anchors_aliases_and_merge_keys_still_work():
 ])
 def test_scenario_errors_name_the_key_path_the_user_wrote(text, words):
     with pytest.raises(ValueError) as error:
-        load_scenario(scenario_text=text)
+        LoadScenario(scenario_text=text)
     message = str(error.value)
     assert words in message
     assert "haptic_rate_hz = -100" not in message and " shape = 'Sshap'" not in message

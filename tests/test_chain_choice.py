@@ -13,7 +13,7 @@ import pytest
 from bad_input_helpers import assert_one_line_error, run, snapshot
 
 import telesmooth.scripts.simulate_report as simulate_report
-from telesmooth.diagrams.scenario import CHAINS, Scenario, load_scenario
+from telesmooth.diagrams.scenario import CHAINS, LoadScenario, Scenario
 
 SHORT = ("{haptic: {source: synthetic, synthetic: {duration_s: 5.0, hold_start_s: 0.5, "
          "hold_end_s: 0.5}}, settle_s: 1.0%s}")
@@ -25,7 +25,7 @@ def test_the_chains_and_the_default():
     # is deployed), or another spelling of the chains.
     assert CHAINS == ("deployed", "paper")
     assert Scenario().chain == "deployed"
-    assert load_scenario().chain == "deployed"
+    assert LoadScenario().chain == "deployed"
 
 
 @pytest.mark.parametrize("text, words", [

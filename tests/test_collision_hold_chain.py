@@ -26,7 +26,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from telesmooth.arms.collision import ArmCollisionModel
 from telesmooth.diagrams.offline_validation import validate_joint_path
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.diagrams.simulation import simulate
 from telesmooth.diagrams.teleoperation import (
     MakeGroundDiagram,
@@ -48,7 +48,7 @@ DURATION_S = 17.0
 
 @pytest.fixture(scope="module")
 def scenario():
-    return load_scenario(scenario_text=PROBE)
+    return LoadScenario(scenario_text=PROBE)
 
 
 @pytest.fixture(scope="module")
@@ -167,7 +167,7 @@ def _run_stop(scenario):
 
 @pytest.fixture(scope="module")
 def stop_scenario():
-    return load_scenario(scenario_text=_with_stop(STOP_LIMITS))
+    return LoadScenario(scenario_text=_with_stop(STOP_LIMITS))
 
 
 @pytest.fixture(scope="module")
@@ -178,7 +178,7 @@ def stop_run(stop_scenario):
 @pytest.fixture(scope="module")
 def stop_hold_record():
     """The same limits with the paper's hold, for contrast."""
-    return simulate(load_scenario(scenario_text=_with_stop(STOP_LIMITS, "hold")),
+    return simulate(LoadScenario(scenario_text=_with_stop(STOP_LIMITS, "hold")),
                     duration_s=DURATION_S)
 
 
@@ -258,7 +258,7 @@ def test_after_release_the_chain_continues_from_the_rest_pose(stop_run):
 
 
 def test_stop_falls_back_to_the_hold_when_it_would_enter_the_probe(record):
-    scenario = load_scenario(scenario_text=_with_stop(""))
+    scenario = LoadScenario(scenario_text=_with_stop(""))
     fallback = _run_stop(scenario)
     assert fallback.stop_status == "hold-pose-rejected"
     np.testing.assert_array_equal(fallback.braking_distance, 0.0)

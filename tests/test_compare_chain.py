@@ -21,7 +21,7 @@ from telesmooth.diagrams.offline_playback import (
     playback_guard_record,
     ramp_start_times,
 )
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.safety.guard import fd_limits_ratio
 from telesmooth.scripts.cli import main
 from telesmooth.studies.comparison import compare_methods, prepare_comparison, run_method
@@ -41,7 +41,7 @@ def _received_ratio(guard, q_start, period_s, a_max, j_max):
 
 @pytest.fixture(scope="module")
 def tight():
-    return load_scenario(scenario_name="OneOfEverything", scenario_text=TIGHT)
+    return LoadScenario(scenario_name="OneOfEverything", scenario_text=TIGHT)
 
 
 def test_the_guard_keeps_what_the_robot_receives_within_the_limits(tight):
@@ -80,7 +80,7 @@ def test_a_stream_within_the_limits_reaches_the_robot_as_sent():
     uplink re-sends the last packet after the path. The robot begins each ramp one receiver
     poll and the interpolator's offset after the packet's send time (the paper's chain: at
     the send time)."""
-    scenario = load_scenario(scenario_name="Defaults")
+    scenario = LoadScenario(scenario_name="Defaults")
     period = scenario.uplink.period_s
     q0 = np.array([0.3, 1.2, -1.0])
     t = period * np.arange(28)
@@ -120,7 +120,7 @@ def test_a_stream_within_the_limits_reaches_the_robot_as_sent():
 
 
 def test_the_paper_chain_is_the_default_and_its_runs_have_no_guard():
-    scenario = load_scenario(scenario_name="OneOfEverything")
+    scenario = LoadScenario(scenario_name="OneOfEverything")
     assert scenario.chain == "deployed"           # the scenario's own default is not read
     comparison = compare_methods(scenario, ("original",))
     assert comparison.chain == "paper"
@@ -173,7 +173,7 @@ def test_the_experiment_records_and_reports_its_chain(tmp_path):
     from telesmooth.studies.experiment import ExperimentConfig, ExperimentTask, run_task
     from telesmooth.studies.journal import grid_fingerprint
 
-    base = load_scenario(scenario_text="{haptic: {lasa_mapping: {time_scale: 4.0, "
+    base = LoadScenario(scenario_text="{haptic: {lasa_mapping: {time_scale: 4.0, "
                                        "hold_start_s: 0.5, hold_end_s: 1.0}}}")
     config = ExperimentConfig(shapes=("Angle",), methods=("original",), sensitivity_shapes=(),
                               c8_shapes=(), settle_s=2.0, speeds=(2.5,), chain="deployed")

@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.diagrams.simulation import simulate, tool_positions
 from telesmooth.scripts.cli import main
 from telesmooth.smoothing.methods import smooth_recording
@@ -22,7 +22,7 @@ METHODS = ("original", "kf-predictor", "offline-cks-trajectory", "bmfls", "onlin
 
 @pytest.fixture(scope="module")
 def scenario():
-    return load_scenario(scenario_name="OneOfEverything")
+    return LoadScenario(scenario_name="OneOfEverything")
 
 
 @pytest.fixture(scope="module")
@@ -152,7 +152,7 @@ def test_bad_methods_and_live_operator_are_refused(scenario):
         method_settings(scenario, "offline-cks", "cvxpy")
     with pytest.raises(ValueError, match="repeats"):
         compare_methods(scenario, ("bmfls", "bmfls"))
-    live = load_scenario(scenario_text="{haptic: {source: lcm}}")
+    live = LoadScenario(scenario_text="{haptic: {source: lcm}}")
     with pytest.raises(ValueError, match="live device"):
         compare_methods(live, ("original",))
 
@@ -254,7 +254,7 @@ def test_a_run_that_keeps_its_collision_geometry_is_said_so_and_gives_the_same_f
         monkeypatch):
     import telesmooth.arms.self_contact as self_contact
 
-    defaults = load_scenario(scenario_text="{}")
+    defaults = LoadScenario(scenario_text="{}")
     said = []
     certified = compare_methods(defaults, ("original",), progress=said.append)
     run = certified.runs["original"]

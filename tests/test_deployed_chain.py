@@ -37,7 +37,7 @@ from process_fixtures import (
 )
 
 import telesmooth.link.faults as faults_module
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.diagrams.simulation import simulate
 from telesmooth.link.auth import generate_key_file
 from telesmooth.link.faults import LinkFaultConfig, LinkFaultModel
@@ -113,7 +113,7 @@ def _replay(accepted, monkeypatch):
     it (mapped onto this clock), the others never; returns (record, clock shift)."""
     # The channel asks the model for every packet's deliveries, even on a perfect link: the
     # hook below answers with the observed polls instead of the model's faults.
-    scenario = load_scenario()
+    scenario = LoadScenario()
     period = scenario.uplink.period_s
     send = {k: k * period for k in accepted}
     # One constant maps the onboard clock onto this one: the earliest packet is taken one
@@ -189,7 +189,7 @@ def test_one_process_is_the_two_processes_time_aligned_by_packet(clean_run, monk
 def test_one_process_as_the_user_runs_it_agrees_with_two_processes(clean_run):
     onboard_out, _ = clean_run
     accepted = _accepted(onboard_out)
-    record = simulate(load_scenario(), duration_s=DURATION_S)
+    record = simulate(LoadScenario(), duration_s=DURATION_S)
     assert record.scenario.chain == "deployed"
     nominal = dict(zip(record.packet_seq.tolist(), (record.packet_t_s + POLL_S).tolist()))
     offsets = np.array([accepted[k] - nominal[k] for k in accepted if k in nominal])
@@ -213,7 +213,7 @@ def test_through_the_relay_one_process_applies_the_same_fault_model(relay_run, m
     assert relay_report["uplink"]["lost"] >= len(lost)
     # Each arrived within a few tens of milliseconds of the model's delivery (the ground's
     # and the relay's timing): compare on the one-process clock.
-    record = simulate(load_scenario(scenario_text="{link: {faults: " + RELAY_LINK + "}}"),
+    record = simulate(LoadScenario(scenario_text="{link: {faults: " + RELAY_LINK + "}}"),
                       duration_s=DURATION_S)
     send = dict(zip(record.packet_seq.tolist(), record.packet_t_s.tolist()))
     due = {k: model.fate(k, send[k]).delivery_times_s[0] for k in accepted if k in send}

@@ -7,7 +7,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 from telesmooth.datasets.haptic_recording import HapticRecording, write_haptic_csv
-from telesmooth.diagrams.scenario import Scenario, load_scenario
+from telesmooth.diagrams.scenario import LoadScenario, Scenario
 from telesmooth.diagrams.teleoperation import (
     MakeGroundDiagram,
     MakeOnboardDiagram,
@@ -25,7 +25,7 @@ packets = uplink_packets   # per packet: (seq, send_time, state_sent), deduplica
 
 @pytest.mark.parametrize("name,duration", [("Defaults", 4.0), ("OneOfEverything", None)])
 def test_builtin_scenarios_run(name, duration):
-    scenario = load_scenario(scenario_name=name)
+    scenario = LoadScenario(scenario_name=name)
     handles = MakeTeleoperationDiagram(scenario)
     end = duration or handles.ground.recording.t_s[-1] + scenario.settle_s
     simulator = Simulator(handles.diagram)
@@ -55,7 +55,7 @@ def _step_recording(tmp_path):
 
 def test_pass_through_command_leaves_exactly_three_ticks_after_the_ik_target(tmp_path):
     path = _step_recording(tmp_path)
-    scenario = load_scenario(scenario_text=(
+    scenario = LoadScenario(scenario_text=(
         f"{{haptic: {{source: file, file: '{path}'}}, smoother: {{method: pass-through}}, "
         "settle_s: 0.5}"))
     handles = MakeTeleoperationDiagram(scenario)
@@ -81,7 +81,7 @@ def test_pass_through_command_leaves_exactly_three_ticks_after_the_ik_target(tmp
 
 
 def test_lcm_split_sends_the_same_commands_as_the_single_process(tmp_path):
-    scenario = load_scenario(scenario_text="{settle_s: 0.0}")
+    scenario = LoadScenario(scenario_text="{settle_s: 0.0}")
     duration = 6.0
     single = MakeTeleoperationDiagram(scenario)
     simulator = Simulator(single.diagram)
@@ -146,12 +146,12 @@ def test_lcm_split_sends_the_same_commands_as_the_single_process(tmp_path):
 ])
 def test_scenario_errors_name_the_key_and_value(text, match):
     with pytest.raises(ValueError, match=match):
-        load_scenario(scenario_text=text)
+        LoadScenario(scenario_text=text)
 
 
 def test_unknown_scenario_name_lists_the_known_ones():
     with pytest.raises(ValueError, match=r"'Nope' is not in .*\['Defaults', 'OneOfEverything'\]"):
-        load_scenario(scenario_name="Nope")
+        LoadScenario(scenario_name="Nope")
 
 
 def test_scenario_file_errors_name_the_file(tmp_path):
@@ -159,9 +159,9 @@ def test_scenario_file_errors_name_the_file(tmp_path):
     broken.write_text("Defaults:\n  arm: [space_arm\n")
     with pytest.raises(ValueError,
                        match=r"scenario file = '.*broken.yaml': not valid YAML at line"):
-        load_scenario(filename=broken)
+        LoadScenario(filename=broken)
     with pytest.raises(ValueError, match=r"scenario file = '.*missing.yaml': cannot read"):
-        load_scenario(filename=tmp_path / "missing.yaml")
+        LoadScenario(filename=tmp_path / "missing.yaml")
 
 
 def test_yaml_syntax_error_exits_2_without_a_traceback(tmp_path, capsys):
@@ -174,7 +174,7 @@ def test_yaml_syntax_error_exits_2_without_a_traceback(tmp_path, capsys):
 
 
 def test_defaults_scenario_is_the_dataclass_default():
-    assert load_scenario() == Scenario()
+    assert LoadScenario() == Scenario()
 
 
 def test_a_haptic_file_in_other_units_or_for_another_arm_is_named(tmp_path):
@@ -188,7 +188,7 @@ def test_a_haptic_file_in_other_units_or_for_another_arm_is_named(tmp_path):
         return path
 
     good = write("good.csv", ["x_m", "y_m", "phi_rad"], [0.8, 0.1, 0.0])
-    recording = make_haptic_recording(load_scenario(
+    recording = make_haptic_recording(LoadScenario(
         scenario_text=f"{{haptic: {{source: file, file: '{good}'}}}}"))
     assert recording.pose.shape == (5, 3)
     millimetres = write("mm.csv", ["x_mm", "y_mm", "phi_rad"], [800.0, 100.0, 0.0])
@@ -196,11 +196,11 @@ def test_a_haptic_file_in_other_units_or_for_another_arm_is_named(tmp_path):
                                          r"\['x_mm', 'y_mm', 'phi_rad'\] are not a pose of the "
                                          r"arm 'air_bearing_arm'; expected \['x_m', 'y_m', "
                                          r"'phi_rad'\] \(metres and radians\)"):
-        make_haptic_recording(load_scenario(
+        make_haptic_recording(LoadScenario(
             scenario_text=f"{{haptic: {{source: file, file: '{millimetres}'}}}}"))
     spatial = write("6dof.csv", ["x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad"],
                     [0.8, 0.1, 0.0, 0.0, 0.0, 0.0])
     with pytest.raises(ValueError, match=r"6dof.csv': a 6-DOF pose .* needs arm: space_arm; "
                                          r"the arm 'air_bearing_arm' reads"):
-        make_haptic_recording(load_scenario(
+        make_haptic_recording(LoadScenario(
             scenario_text=f"{{haptic: {{source: file, file: '{spatial}'}}}}"))

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from telesmooth.arms.self_contact import CLEARANCE_M
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.scripts.cli import main
 from telesmooth.studies.claims import check_claims, summarize, summarize_cells
 from telesmooth.studies.comparison import response_latency
@@ -30,7 +30,7 @@ FAST = "{haptic: {lasa_mapping: {time_scale: 4.0, hold_start_s: 0.5, hold_end_s:
 
 @pytest.fixture(scope="module")
 def base():
-    return load_scenario(scenario_text=FAST)
+    return LoadScenario(scenario_text=FAST)
 
 
 def small_config(**overrides):
@@ -463,7 +463,7 @@ def test_a_folder_of_another_grid_is_refused(base, tmp_path, monkeypatch, capsys
     with pytest.raises(ValueError, match=r"another experiment \(it differs in: speeds\)"):
         write_experiment_report(out, base, dataclasses.replace(_grid(), speeds=(1.0,)),
                                 workers=0, progress=lambda line: None)
-    other_base = load_scenario(scenario_text="{smoother: {max_jerk_rad_per_s3: 0.2}}")
+    other_base = LoadScenario(scenario_text="{smoother: {max_jerk_rad_per_s3: 0.2}}")
     with pytest.raises(ValueError, match="the base scenario"):
         write_experiment_report(out, other_base, _grid(), workers=0,
                                 progress=lambda line: None)
@@ -616,7 +616,7 @@ def test_tasks_are_grouped_by_demonstration():
 def test_a_group_gives_each_task_the_record_it_gets_alone_and_reuses_equal_packets():
     from telesmooth.studies.experiment import run_task, run_task_group
 
-    base = load_scenario(scenario_text=LOOSE)
+    base = LoadScenario(scenario_text=LOOSE)
     config = small_config(methods=("original", "offline-ks", "offline-cks", "online-cks",
                                    "online-hard", "bmfls"))
     tasks = make_tasks(config)
@@ -645,7 +645,7 @@ def test_a_group_is_one_demonstration():
     config = small_config(demos=(0, 1))
     tasks = make_tasks(config)
     with pytest.raises(ValueError, match="must be of one demonstration"):
-        run_task_group(tasks, load_scenario(scenario_text=FAST), config)
+        run_task_group(tasks, LoadScenario(scenario_text=FAST), config)
 
 
 def test_the_report_says_how_many_plant_runs_were_reused(base, tmp_path, monkeypatch):

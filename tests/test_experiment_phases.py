@@ -22,7 +22,7 @@ from telesmooth.diagrams.offline_playback import (
     set_points,
     simulate_playback,
 )
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.smoothing.metrics import motion_span
 from telesmooth.studies.comparison import (
     _phase_means,
@@ -106,7 +106,7 @@ def test_set_points_follow_the_interpolators_own_ramp_function():
 
 @pytest.fixture(scope="module")
 def angle_setup():
-    base = load_scenario(scenario_text=FAST)
+    base = LoadScenario(scenario_text=FAST)
     scenario = experiment_scenario(base, ExperimentConfig(settle_s=2.0), "Angle", 0,
                                    speed=2.5)
     return prepare_comparison(scenario)
@@ -179,7 +179,7 @@ def test_set_points_from_the_logged_ramps_are_the_robots_desired_state(angle_set
 
 
 def test_carried_sigma_is_the_c8_studys_chain_and_demo_0_starts_from_sigma_0():
-    base = load_scenario(scenario_text=FAST)
+    base = LoadScenario(scenario_text=FAST)
     config = ExperimentConfig(shapes=("Angle",), demos=(0, 2), methods=("original",
                               "online-cks"), sensitivity_shapes=(), c8_shapes=("Angle",),
                               settle_s=2.0, speeds=(2.5,), kf_sigma0_factors=())

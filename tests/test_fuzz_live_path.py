@@ -51,13 +51,13 @@ def test_malformed_packets_on_the_channel_do_not_stop_the_receiver(kind, payload
     from pydrake.lcm import DrakeLcm
     from pydrake.systems.analysis import Simulator
 
-    from telesmooth.diagrams.scenario import load_scenario
+    from telesmooth.diagrams.scenario import LoadScenario
     from telesmooth.diagrams.teleoperation import MakeGroundDiagram, MakeOnboardDiagram
 
     lcm = DrakeLcm("memq://")
     if kind == "joint":
         lcm_type, channel = lcmt_teleop_joint_command, "TELEOP_JOINT_COMMAND"
-        handles = MakeOnboardDiagram(load_scenario(), lcm=lcm)
+        handles = MakeOnboardDiagram(LoadScenario(), lcm=lcm)
         receiver = handles.onboard.receiver
         subscriber = handles.diagram.GetSubsystemByName("joint_command_subscriber")
         arm = handles.scenario.arm_description
@@ -69,7 +69,7 @@ def test_malformed_packets_on_the_channel_do_not_stop_the_receiver(kind, payload
         rejected = receiver.get_command_rejected_output_port()
     else:
         lcm_type, channel = lcmt_teleop_haptic_command, "TELEOP_HAPTIC_COMMAND"
-        handles = MakeGroundDiagram(load_scenario(scenario_text="{haptic: {source: lcm}}"),
+        handles = MakeGroundDiagram(LoadScenario(scenario_text="{haptic: {source: lcm}}"),
                                     lcm=lcm)
         receiver = handles.ground.haptic
         assert isinstance(receiver, HapticCommandReceiver)

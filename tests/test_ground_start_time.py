@@ -19,7 +19,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.scripts.processes import RobotTelemetry, ground_start_time
 
 
@@ -79,7 +79,7 @@ def test_exactly_one_poll_ahead_is_taken_not_skipped():
 def test_without_the_robots_clock_it_starts_now():
     # Catches: a NaN offset turned into a NaN start (the ground would never start) or into a
     # wait of a poll or two for nothing.
-    scenario = load_scenario()
+    scenario = LoadScenario()
     assert ground_start_time(_telemetry(math.nan), scenario, now=321.5) == 321.5
     # ... and the built-in scenario's own periods follow the rule.
     start = ground_start_time(_telemetry(4.56789), scenario, now=321.5)

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.diagrams.simulation import (
     GuardRecord,
     SimulationRecord,
@@ -86,7 +86,7 @@ def _replay(handles, simulator):
 def _run(name):
     """(name, scenario, the record, the pure guard's replay) of one of RUNS, once."""
     method, link = RUNS[name]
-    scenario = load_scenario(scenario_text=SHORT % (method, link))
+    scenario = LoadScenario(scenario_text=SHORT % (method, link))
     assert scenario.chain == "deployed"
     assert scenario.command_receiver.poll_period_s == POLL and scenario.uplink.period_s == TICK
     handles = MakeTeleoperationDiagram(scenario)
@@ -188,7 +188,7 @@ MOVES = np.array([[0.00125, 0.0025, 0.0],
 
 
 def _hand_record():
-    scenario = load_scenario(scenario_text=SHORT % ("online-hard", ""))
+    scenario = LoadScenario(scenario_text=SHORT % ("online-hard", ""))
     assert scenario.smoother.max_acceleration_rad_per_s2 == 0.05
     assert scenario.smoother.max_jerk_rad_per_s3 == 0.1
     # 10 polls: held 1, resuming 3, track 4, stopping 2. Commands at polls 1 (resuming),

@@ -10,7 +10,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.lcm import LcmInterfaceSystem, LcmSubscriberSystem
 
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.diagrams.teleoperation import MakeGroundDiagram, MakeOnboardDiagram
 from telesmooth.lcm_types import (
     lcmt_onboard_joint_status,
@@ -231,7 +231,7 @@ def test_onboard_process_survives_garbage_between_uplink_packets():
     # Ground and onboard diagrams on one memq:// bus; a third party injects malformed packets
     # on TELEOP_JOINT_COMMAND. The run completes, every good packet is still accepted, and
     # the telemetry reports the rejections.
-    scenario = load_scenario(scenario_text="{settle_s: 0.0}")
+    scenario = LoadScenario(scenario_text="{settle_s: 0.0}")
     lcm = DrakeLcm("memq://")
     ground = MakeGroundDiagram(scenario, lcm=lcm)
     onboard = MakeOnboardDiagram(scenario, lcm=lcm)
@@ -278,7 +278,7 @@ def test_onboard_process_survives_garbage_between_uplink_packets():
 
 
 def test_ground_process_survives_garbage_from_the_haptic_device():
-    scenario = load_scenario(scenario_text="{haptic: {source: lcm}}")
+    scenario = LoadScenario(scenario_text="{haptic: {source: lcm}}")
     lcm = DrakeLcm("memq://")
     ground = MakeGroundDiagram(scenario, lcm=lcm)
     simulator = Simulator(ground.diagram)

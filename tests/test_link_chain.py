@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram, uplink_packets
 from telesmooth.systems.link_guard import MODE_TRACK, fd_limits_ratio
 
@@ -42,7 +42,7 @@ CASES = {
 
 
 def _run(faults):
-    scenario = load_scenario(scenario_text=BASE % faults)
+    scenario = LoadScenario(scenario_text=BASE % faults)
     handles = MakeTeleoperationDiagram(scenario)
     simulator = Simulator(handles.diagram)
     simulator.Initialize()
@@ -144,9 +144,9 @@ def test_the_guard_keeps_the_limits(case):
 
 
 def test_without_faults_the_robot_gets_exactly_the_direct_chain():
-    deployed = load_scenario(scenario_text=BASE % "{}")
+    deployed = LoadScenario(scenario_text=BASE % "{}")
     assert deployed.chain == "deployed"       # the default
-    direct = load_scenario(scenario_text=(BASE % "{}")[:-1] + ", chain: paper}")
+    direct = LoadScenario(scenario_text=(BASE % "{}")[:-1] + ", chain: paper}")
     _, handles, context, logs = _run("{}")
     seq, _, states = uplink_packets(handles, context)
     rows = _changes(logs["guard_command_count"].data()[0])[1:]

@@ -24,7 +24,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram
 from telesmooth.lcm_types import lcmt_teleop_joint_command
 from telesmooth.systems.joint_command_receiver import (
@@ -140,7 +140,7 @@ def test_any_phase_is_accepted_at_the_poll_after_the_channels_and_never_later_th
 def test_in_the_deployed_chain_packet_k_is_accepted_at_k_tick_plus_one_poll():
     # Catches: the deployed chain built without the channel's offset (or with another
     # period): its packets would be taken a poll late, 20 ms after their tick.
-    scenario = load_scenario(scenario_text=(
+    scenario = LoadScenario(scenario_text=(
         "{haptic: {source: synthetic, synthetic: {duration_s: 5.0, hold_start_s: 0.5, "
         "hold_end_s: 0.5}}, settle_s: 1.0}"))
     assert scenario.chain == "deployed" and scenario.command_receiver.poll_period_s == POLL

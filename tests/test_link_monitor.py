@@ -160,11 +160,11 @@ def test_a_restarted_ground_takes_only_valid_telemetry_as_the_robot_pose():
 
     import lcm
 
-    from telesmooth.diagrams.scenario import load_scenario
+    from telesmooth.diagrams.scenario import LoadScenario
     from telesmooth.lcm_types.channels import ONBOARD_JOINT_STATUS
     from telesmooth.scripts.processes import robot_commanded_pose
 
-    scenario = load_scenario()
+    scenario = LoadScenario()
     arm = scenario.arm_description
     url = f"udpm://239.255.76.67:{worker_port(7300)}?ttl=0"
     valid = 0.5 * (arm.joint_lower_rad + arm.joint_upper_rad) + 0.01

@@ -17,7 +17,7 @@ from pydrake.trajectories import PiecewisePolynomial
 
 from telesmooth.arms.planar import AIR_BEARING_ARM, planar_forward_kinematics
 from telesmooth.datasets.haptic_recording import HapticRecording, write_haptic_csv
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.diagrams.simulation import run_metrics, simulate
 from telesmooth.studies.comparison import OperatorSamples, prepare_comparison, run_method
 from telesmooth.systems.flexible_arm import FlexibleArmConfig, FlexibleJointArm
@@ -100,7 +100,7 @@ def _constant_pose_scenario(tmp_path, extra=""):
     path = tmp_path / "still.csv"
     write_haptic_csv(path, HapticRecording(t_s=t, pose=pose, enable=np.ones(t.size, bool),
                                            pose_names=("x_m", "y_m", "phi_rad")))
-    return load_scenario(scenario_text=(
+    return LoadScenario(scenario_text=(
         f"{{haptic: {{source: file, file: '{path}'}}, settle_s: 2.0, "
         f"onboard: {{tracker: {{noise_m: 1.0e-4, seed: 11}}}}{extra}}}"))
 
@@ -159,7 +159,7 @@ def test_e_of_a_constant_velocity_ramp_is_a_small_fraction_of_one_millisecond_of
     outputs, a servo without the one-step lead) e would exceed R·ω·1 ms; read one tracker
     period late (a logger stamping the sample at the end of its period) it is R·ω·10 ms more
     (0.55 mm)."""
-    scenario = load_scenario(scenario_text=(
+    scenario = LoadScenario(scenario_text=(
         f"{{onboard: {{time_step_s: {time_step_s}, "
         "drive: {damping_n_m_s_per_rad: [60, 20, 3]}}, settle_s: 0.5}"))
     omega, radius = 0.05, sum(AIR_BEARING_ARM.link_lengths_m)
@@ -186,7 +186,7 @@ def test_with_a_zero_order_hold_the_response_is_read_at_the_end_of_each_hold():
     t_k + Δt exactly, and well below the step (the robot had the period to move)."""
     from telesmooth.diagrams.simulation import response_delay_s
 
-    scenario = load_scenario(scenario_text=(
+    scenario = LoadScenario(scenario_text=(
         "{onboard: {interpolator: {interpolation: zoh}, "
         "drive: {damping_n_m_s_per_rad: [60, 20, 3]}}, settle_s: 0.5}"))
     period = scenario.uplink.period_s
@@ -231,7 +231,7 @@ def _moving_scenario(tmp_path, extra=""):
     path = tmp_path / "moving.csv"
     write_haptic_csv(path, HapticRecording(t_s=t, pose=pose, enable=np.ones(t.size, bool),
                                            pose_names=("x_m", "y_m", "phi_rad")))
-    return load_scenario(scenario_text=(
+    return LoadScenario(scenario_text=(
         f"{{haptic: {{source: file, file: '{path}'}}, settle_s: 1.0, "
         "smoother: {method: online-hard}, "
         f"onboard: {{tracker: {{noise_m: 0.0}}}}{extra}}}"))

@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.scripts.cli import METHOD_CHOICES, build_parser, main
 from telesmooth.smoothing.methods import (
     CHAIN_METHODS,
@@ -119,7 +119,7 @@ def test_the_chain_takes_both_names_of_the_pass_through():
         alias for alias, method in METHOD_ALIASES.items() if method in CHAIN_METHODS}
     for name in ("pass-through", "original"):
         assert ReducedQSmootherConfig(method=name).method == name
-        scenario = load_scenario(scenario_text=f"{{smoother: {{method: {name}}}}}")
+        scenario = LoadScenario(scenario_text=f"{{smoother: {{method: {name}}}}}")
         assert method_settings(scenario, name)[0] == "original"
     with pytest.raises(ValueError, match="ReducedQSmootherConfig.method = 'kf'"):
         ReducedQSmootherConfig(method="kf")

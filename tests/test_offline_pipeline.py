@@ -27,7 +27,7 @@ from telesmooth.diagrams.offline_playback import (
     simulate_playback,
 )
 from telesmooth.diagrams.offline_validation import validate_joint_path
-from telesmooth.diagrams.scenario import load_scenario, make_haptic_recording
+from telesmooth.diagrams.scenario import LoadScenario, make_haptic_recording
 from telesmooth.smoothing.kalman import rest_start_prior
 from telesmooth.smoothing.metrics import VIOLATION_RTOL
 from telesmooth.smoothing.model import JerkModel
@@ -41,7 +41,7 @@ HISTORY = 3
 
 @pytest.fixture(scope="module")
 def scenario():
-    return load_scenario(scenario_text=SESSION)
+    return LoadScenario(scenario_text=SESSION)
 
 
 @pytest.fixture(scope="module")

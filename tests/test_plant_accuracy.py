@@ -23,9 +23,9 @@ from pydrake.systems.analysis import ResetIntegratorFromFlags, RungeKutta3Integr
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import Integrator, Sine
 
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.studies.comparison import prepare_comparison, run_method, set_improvement_ratios
-from telesmooth.systems.flexible_arm import FlexibleArmConfig, make_simulator
+from telesmooth.systems.flexible_arm import FlexibleArmConfig, MakeSimulator
 
 REFERENCE_SCHEME, REFERENCE_ACCURACY = "runge_kutta3", 1e-6
 
@@ -46,7 +46,7 @@ def _figures(scenario) -> dict:
 @pytest.mark.parametrize("text", ["{}", "{onboard: {drive: {preset: lightweight}}}"],
                          ids=["Defaults", "lightweight"])
 def test_the_default_plant_agrees_with_a_much_more_accurate_integration(text):
-    scenario = load_scenario(scenario_text=text)
+    scenario = LoadScenario(scenario_text=text)
     assert scenario.onboard.time_step_s == 0.0
     assert (scenario.onboard.integration_scheme, scenario.onboard.integration_accuracy) == (
         "bogacki_shampine3", 1e-3)
@@ -80,7 +80,7 @@ def _run(simulator) -> tuple[float, int]:
 
 def test_make_simulator_applies_the_configured_integrator():
     diagram = _sine_integral()
-    default = make_simulator(diagram, FlexibleArmConfig())
+    default = MakeSimulator(diagram, FlexibleArmConfig())
     assert default.get_integrator().get_target_accuracy() == 1e-3
     # Steps of at most 10 ms, the tracker's period (a playback's steps are not ended by it).
     assert default.get_integrator().get_maximum_step_size() == 0.01
@@ -92,7 +92,7 @@ def test_make_simulator_applies_the_configured_integrator():
     assert x == pytest.approx((1.0 - np.cos(6.0)) / 3.0, rel=1e-2)     # the closed form
     # drake's own default (third-order Runge–Kutta at 1e-4) is not what the helper gives.
     assert _run(Simulator(diagram)) != (x, evaluations)
-    other = make_simulator(diagram, FlexibleArmConfig(integration_scheme="runge_kutta3",
+    other = MakeSimulator(diagram, FlexibleArmConfig(integration_scheme="runge_kutta3",
                                                       integration_accuracy=1e-6))
     assert isinstance(other.get_integrator(), RungeKutta3Integrator)
     assert other.get_integrator().get_target_accuracy() == 1e-6

@@ -26,7 +26,7 @@ from telesmooth.arms.description import (
 )
 from telesmooth.arms.drake_models import add_arm
 from telesmooth.arms.modes import plant_modes, vibration_modes
-from telesmooth.diagrams.scenario import initial_position, load_scenario, make_haptic_recording
+from telesmooth.diagrams.scenario import LoadScenario, initial_position, make_haptic_recording
 from telesmooth.diagrams.simulation import plant_summary, plant_text
 from telesmooth.systems.flexible_arm import DriveConfig, FlexibleArmConfig, FlexibleJointArm
 
@@ -135,8 +135,8 @@ def _start_pose(scenario):
 def test_the_lightweight_preset_rings_slowly_and_lightly_damped(name):
     """Lowest mode 0.5-1.5 Hz with damping ratio at most 0.03 about the start pose; the lab
     arm's is faster and better damped."""
-    lab = load_scenario(scenario_name=name)
-    light = load_scenario(scenario_name=name,
+    lab = LoadScenario(scenario_name=name)
+    light = LoadScenario(scenario_name=name,
                           scenario_text="{onboard: {drive: {preset: lightweight}}}")
     pose = _start_pose(lab)
     lab_f, lab_zeta = plant_modes(lab.onboard.arm_description, pose).lowest_ringing()
@@ -151,7 +151,7 @@ def test_the_lightweight_preset_rings_slowly_and_lightly_damped(name):
 
 
 def test_drive_fields_override_the_preset_and_reach_the_plant():
-    scenario = load_scenario(scenario_text=(
+    scenario = LoadScenario(scenario_text=(
         "{onboard: {drive: {preset: lightweight, stiffness_n_m_per_rad: 77, "
         "motor_kp_n_m_per_rad: {shoulder: 1000, elbow: 900, wrist: 800}, "
         "motor_kd_n_m_s_per_rad: [61, 62, 63], rotor_inertia_kg_m2: 2.0e-4}}}"))
@@ -188,7 +188,7 @@ def test_drive_fields_override_the_preset_and_reach_the_plant():
 ])
 def test_invalid_drive_values_are_refused_naming_the_key_path(text, message):
     with pytest.raises(ValueError) as error:
-        load_scenario(scenario_text=text)
+        LoadScenario(scenario_text=text)
     assert message in str(error.value)
 
 
@@ -200,7 +200,7 @@ def test_drive_config_checks_its_preset():
 
 
 def test_the_report_states_the_plant_and_its_modes():
-    scenario = load_scenario(scenario_text="{onboard: {drive: {preset: lightweight}}}")
+    scenario = LoadScenario(scenario_text="{onboard: {drive: {preset: lightweight}}}")
     summary = plant_summary(scenario, _start_pose(scenario))
     expected = plant_modes(scenario.onboard.arm_description, _start_pose(scenario))
     assert summary["drive_preset"] == "lightweight"
@@ -219,7 +219,7 @@ def test_the_report_states_the_plant_and_its_modes():
 def test_servo_modes_are_told_apart_from_the_ringing_ones():
     """The 6-DOF lab arm at the OneOfEverything pose has a servo mode at 1.59 Hz (ζ ≈ 1)
     below its lowest ringing mode (3.66 Hz, ζ 0.051): the report names the ringing one."""
-    scenario = load_scenario(scenario_name="OneOfEverything")
+    scenario = LoadScenario(scenario_name="OneOfEverything")
     modes = plant_modes(scenario.onboard.arm_description, _start_pose(scenario))
     assert modes.natural_frequency_hz[0] < 2.0 and modes.damping_ratio[0] > 0.9
     f, zeta = modes.lowest_ringing()

@@ -22,11 +22,11 @@ from telesmooth.diagrams.offline_playback import (
     simulate_playback,
     tracker_sample_times,
 )
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.diagrams.simulation import tool_positions
-from telesmooth.diagrams.teleoperation import AddOnboardRobot, connect_uplink_to_robot
+from telesmooth.diagrams.teleoperation import AddOnboardRobot, ConnectUplinkToRobot
 from telesmooth.studies.comparison import prepare_comparison, run_method
-from telesmooth.systems.flexible_arm import FlexibleJointArm, make_simulator
+from telesmooth.systems.flexible_arm import FlexibleJointArm, MakeSimulator
 from telesmooth.systems.laser_tracker import LaserTrackerConfig, tracker_record
 from telesmooth.systems.planned_path_source import PlannedPathSource
 from telesmooth.systems.uplink import Uplink
@@ -67,10 +67,10 @@ def _event_record(scenario, packets, q_start, duration_s):
     robot = AddOnboardRobot(builder, scenario, initial_position_rad=q_start,
                             command_period_s=period)
     assert robot.tracker_in_diagram
-    connect_uplink_to_robot(builder, uplink, robot)
+    ConnectUplinkToRobot(builder, uplink, robot)
     logger = LogVectorOutput(robot.GetOutputPort("tracker_measurement"), builder,
                              scenario.onboard.tracker.period_s)
-    simulator = make_simulator(builder.Build(), robot.config)
+    simulator = MakeSimulator(builder.Build(), robot.config)
     simulator.AdvanceTo(duration_s)
     return tracker_record(logger.FindLog(simulator.get_context()).data().T)
 
@@ -86,7 +86,7 @@ def _dense_record(scenario, packets, q_start, duration_s):
 @pytest.fixture(scope="module")
 def playback():
     """Defaults' recorded session as Online-CKS sends it: a real command stream."""
-    scenario = load_scenario(scenario_text="{settle_s: 1.0}")
+    scenario = LoadScenario(scenario_text="{settle_s: 1.0}")
     setup = prepare_comparison(scenario)
     run = run_method(setup, "online-cks")
     return scenario, run.packets, setup.q_start, setup.duration_s
@@ -131,7 +131,7 @@ def test_the_dense_record_is_as_accurate_as_the_tracker_event(playback):
 
 def test_record_adds_each_samples_own_noise():
     config = LaserTrackerConfig(noise_m=1e-4, seed=11)
-    noisy = FlexibleJointArm(dataclasses.replace(load_scenario(scenario_text="{}").onboard,
+    noisy = FlexibleJointArm(dataclasses.replace(LoadScenario(scenario_text="{}").onboard,
                                                  tracker=config), tracker_in_diagram=False)
     exact = FlexibleJointArm(tracker_in_diagram=False)
     rng = np.random.default_rng(3)
@@ -206,7 +206,7 @@ def test_where_drake_refuses_a_dense_output_the_playback_stops_at_every_instant(
                                                            poll_period_s=0.01)))
     builder = DiagramBuilder()
     _, _, robot, _ = AddPathPlayback(builder, polling, packets, q_start=q_start)
-    simulator = make_simulator(builder.Build(), robot.config)
+    simulator = MakeSimulator(builder.Build(), robot.config)
     simulator.Initialize()
     simulator.get_integrator().StartDenseIntegration()
     with pytest.raises(RuntimeError, match="apart"):

@@ -47,7 +47,7 @@ from process_fixtures import (
     read_rows,
 )
 
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.lcm_types import lcmt_onboard_joint_status, lcmt_teleop_joint_command
 from telesmooth.lcm_types.channels import ONBOARD_JOINT_STATUS, TELEOP_JOINT_COMMAND
 from telesmooth.link.auth import generate_key_file
@@ -205,7 +205,7 @@ def matrix(tmp_path_factory):
     accepted = read_rows(out / "onboard_commands.csv")        # count, session, seq, t, q…
     guard = read_rows(out / "onboard_guard.csv")              # command, t, mode, outcome, q…
     return dict(cases=cases, accepted=accepted, guard=guard, listener=listener,
-                scenario=load_scenario(scenario_text=SCENARIO_TEXT), out=out)
+                scenario=LoadScenario(scenario_text=SCENARIO_TEXT), out=out)
 
 
 def _oracle_accepted(arrivals):

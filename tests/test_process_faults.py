@@ -28,7 +28,7 @@ from process_fixtures import (
     read_rows,
 )
 
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.lcm_types import lcmt_onboard_joint_status, lcmt_teleop_joint_command
 from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.link.auth import generate_key_file, sign
@@ -66,7 +66,7 @@ def fault_run(tmp_path_factory):
     url_a, url_b = bus_urls(7600)
     key_path = out / "uplink.key"
     key = generate_key_file(key_path)
-    scenario = load_scenario(scenario_text=SCENARIO_TEXT)
+    scenario = LoadScenario(scenario_text=SCENARIO_TEXT)
     names = scenario.arm_description.joint_names
     common = ["--scenario-text", SCENARIO_TEXT, "--uplink-key", str(key_path)]
     processes = []

@@ -34,7 +34,7 @@ from process_fixtures import (
     read_rows,
 )
 
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.lcm_types import lcmt_teleop_joint_command
 from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
 from telesmooth.systems.link_guard import MODE_TRACK
@@ -98,7 +98,7 @@ def loaded_run(tmp_path_factory):
 def test_the_guard_tracks_on_95_percent_of_its_ticks_with_a_cpu_bound_process_beside_it(
         loaded_run):
     out = loaded_run["out"] / "onboard"
-    timeout_s = load_scenario().link_guard.timeout_s
+    timeout_s = LoadScenario().link_guard.timeout_s
     accepted = read_rows(out / "onboard_commands.csv")     # count, session, seq, t, q…
     ticks = read_rows(out / "onboard_ticks.csv")          # t, mode, distance, accepted
     received = accepted[:, 3]
@@ -149,7 +149,7 @@ def test_the_guard_tracks_on_95_percent_of_its_ticks_with_a_cpu_bound_process_be
 def test_everything_commanded_in_the_loaded_run_is_within_the_limits(loaded_run):
     from telesmooth.systems.link_guard import fd_limits_ratio
 
-    scenario = load_scenario()
+    scenario = LoadScenario()
     guard = read_rows(loaded_run["out"] / "onboard" / "onboard_guard.csv")
     q = guard[:, 5:]
     arm = scenario.arm_description

@@ -24,7 +24,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
 import telesmooth.scripts.process_report as process_report
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.diagrams.simulation import response_errors
 from telesmooth.diagrams.teleoperation import (
     MakeGroundDiagram,
@@ -82,7 +82,7 @@ class _Sink:
 
 
 def _fabricated_handles(monkeypatch, times, values):
-    scenario = load_scenario()
+    scenario = LoadScenario()
     assert scenario.publish_offset_s == 0.001
     # The ground's own fields (targets, packets, ticks) do not take part in the mapping.
     monkeypatch.setattr(process_report, "ground_fields", lambda handles, context: dict(
@@ -141,7 +141,7 @@ def test_without_telemetry_the_ground_record_has_no_robot(monkeypatch):
 
 @pytest.fixture(scope="module")
 def two_sides():
-    scenario = load_scenario(scenario_text=SHORT)
+    scenario = LoadScenario(scenario_text=SHORT)
     lcm = DrakeLcm("memq://")
     ground = MakeGroundDiagram(scenario, lcm=lcm)
     onboard = MakeOnboardDiagram(scenario, lcm=lcm)

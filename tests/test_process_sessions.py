@@ -28,7 +28,7 @@ from process_fixtures import (
     read_rows,
 )
 
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.lcm_types import lcmt_onboard_joint_status, lcmt_teleop_joint_command
 from telesmooth.lcm_types.channels import ONBOARD_JOINT_STATUS, TELEOP_JOINT_COMMAND
 from telesmooth.link.auth import generate_key_file, sign
@@ -82,7 +82,7 @@ def session_run(tmp_path_factory):
     url, _ = bus_urls(7900)
     key_path = out / "uplink.key"
     key = generate_key_file(key_path)
-    names = load_scenario(scenario_text=SCENARIO_TEXT).arm_description.joint_names
+    names = LoadScenario(scenario_text=SCENARIO_TEXT).arm_description.joint_names
     common = ["--scenario-text", SCENARIO_TEXT, "--uplink-key", str(key_path), "--lcm-url", url]
     bus = _Bus(url)
     processes = []

@@ -245,15 +245,15 @@ def test_the_example_poses_are_where_the_docs_say_the_frames_put_them():
 def test_the_limits_the_docs_give_are_the_scenarios():
     """docs/commands.md's smooth section states the chain's own limits: they are those of
     Defaults (every joint) and OneOfEverything (per joint)."""
-    from telesmooth.diagrams.scenario import load_scenario
+    from telesmooth.diagrams.scenario import LoadScenario
 
     text = (Path(__file__).resolve().parents[1] / "docs" / "commands.md").read_text()
     text = " ".join(text.split())
     assert ("0.05 rad/s² and 0.1 rad/s³ on every joint by default (`OneOfEverything`: "
             "acceleration 0.05 on the 6-DOF arm's first three joints, 0.2 on the wrist's)"
             ) in text
-    defaults = load_scenario().smoother
+    defaults = LoadScenario().smoother
     assert (defaults.max_acceleration_rad_per_s2, defaults.max_jerk_rad_per_s3) == (0.05, 0.1)
-    every = load_scenario(scenario_name="OneOfEverything").smoother
+    every = LoadScenario(scenario_name="OneOfEverything").smoother
     assert tuple(every.max_acceleration_rad_per_s2) == (0.05,) * 3 + (0.2,) * 3
     assert every.max_jerk_rad_per_s3 == 0.1

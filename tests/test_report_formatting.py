@@ -3,7 +3,7 @@ the plant are named."""
 
 import pytest
 
-from telesmooth.diagrams.scenario import describe_operator, load_scenario
+from telesmooth.diagrams.scenario import LoadScenario, describe_operator
 from telesmooth.scripts.formatting import limit_ratio
 
 
@@ -33,7 +33,7 @@ def test_every_violation_reads_above_one():
     ("{haptic: {source: lcm}}", "a live haptic device over LCM"),
 ])
 def test_the_operator_is_named(text, expected):
-    assert describe_operator(load_scenario(scenario_text=text)) == expected
+    assert describe_operator(LoadScenario(scenario_text=text)) == expected
 
 
 def test_a_run_still_moving_at_its_end_is_not_given_a_settling_time():

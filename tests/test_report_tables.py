@@ -194,7 +194,7 @@ def test_the_experiment_report_has_no_raw_json_and_names_its_chain(tmp_path, mon
     JSON object, the chain in its first lines."""
     import dataclasses
 
-    from telesmooth.diagrams.scenario import load_scenario
+    from telesmooth.diagrams.scenario import LoadScenario
     from telesmooth.scripts.experiment_report import write_experiment_report
     from telesmooth.studies import experiment
     from telesmooth.studies.experiment import ExperimentConfig
@@ -221,7 +221,7 @@ def test_the_experiment_report_has_no_raw_json_and_names_its_chain(tmp_path, mon
                                             cartesian_deformation_mean_m=1e-3 * rank)}
 
     monkeypatch.setattr(experiment, "iter_task_group", fake_group)
-    base = load_scenario()
+    base = LoadScenario()
     config = ExperimentConfig(shapes=("Angle", "CShape"), methods=methods,
                               sensitivity_shapes=(), c8_shapes=("Angle",))
     for chain in ("paper", "deployed"):

@@ -8,7 +8,7 @@ distinguishable in the text).
 
 import pytest
 
-from telesmooth.diagrams.scenario import describe_chain, load_scenario
+from telesmooth.diagrams.scenario import LoadScenario, describe_chain
 from telesmooth.link.faults import LinkFaultConfig
 from telesmooth.scripts.simulate_report import limits_text
 
@@ -61,13 +61,13 @@ def test_no_fault_is_a_perfect_link(fields):
 def test_describe_chain_names_the_chain_and_the_link():
     # Catches: the paper's chain described as guarded (or the deployed one as unguarded), and
     # the deployed chain's link not said (perfect, or which faults).
-    paper = describe_chain(load_scenario(scenario_text="{chain: paper}"))
+    paper = describe_chain(LoadScenario(scenario_text="{chain: paper}"))
     assert paper.startswith("the paper's chain: ")
     assert "no onboard packet checks and no link guard" in paper
-    deployed = describe_chain(load_scenario())
+    deployed = describe_chain(LoadScenario())
     assert deployed.startswith("the deployed chain: ")
     assert "crosses a perfect link," in deployed and "link guard" in deployed
-    faulty = describe_chain(load_scenario(
+    faulty = describe_chain(LoadScenario(
         scenario_text="{link: {faults: {loss_probability: 0.1, seed: 3}}}"))
     assert "crosses the seeded link fault model (loss 10 %; seed 3)," in faulty
 

@@ -22,7 +22,7 @@ from telesmooth.arms.self_contact import (
     self_contact_certificate,
 )
 from telesmooth.diagrams.offline_playback import AddPathPlayback, play_path, simulate_playback
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.systems.flexible_arm import FlexibleArmConfig, FlexibleJointArm
 
 PLANAR = AIR_BEARING_ARM_3DOF
@@ -162,7 +162,7 @@ def _same(logs, other):
 
 
 def test_a_certified_playback_is_the_run_with_geometry_to_the_bit():
-    scenario = load_scenario(scenario_text="{}")
+    scenario = LoadScenario(scenario_text="{}")
     q_start = np.array([0.2, 0.5, -0.3])
     packets = q_start + np.outer(np.minimum(np.arange(16), 8) / 8.0, [0.3, -0.2, 0.4])
     logs, check = play_path(scenario, packets, q_start=q_start, duration_s=5.0)
@@ -171,7 +171,7 @@ def test_a_certified_playback_is_the_run_with_geometry_to_the_bit():
 
 
 def test_a_playback_into_self_contact_is_run_again_with_geometry():
-    scenario = load_scenario(scenario_text="{}")
+    scenario = LoadScenario(scenario_text="{}")
     certificate = self_contact_certificate(scenario.arm_description)
     q_start, folded = np.array([0.0, 2.0, 0.6]), np.array([0.0, 2.6, 1.9])
     assert certificate.distances(_positions(certificate, q_start)).min() > 0.05
@@ -193,7 +193,7 @@ def test_a_playback_into_self_contact_is_run_again_with_geometry():
 
 
 def test_a_discrete_plant_is_played_with_its_geometry_and_no_check():
-    scenario = load_scenario(scenario_text="{onboard: {time_step_s: 0.005}}")
+    scenario = LoadScenario(scenario_text="{onboard: {time_step_s: 0.005}}")
     q_start = np.zeros(3)
     logs, check = play_path(scenario, np.tile(q_start, (4, 1)), q_start=q_start,
                             duration_s=1.0)

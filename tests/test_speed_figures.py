@@ -18,7 +18,7 @@ import pytest
 
 import telesmooth.diagrams.simulation as simulation
 import telesmooth.scripts.bench_core as bench_core
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 
 
 def _burn_cpu(seconds: float) -> None:
@@ -51,7 +51,7 @@ class _SlowAdvance:
 def test_simulate_times_the_advance_and_not_the_build(monkeypatch):
     build_burn_s, advance_burn_s = 0.4, 0.03
     slow = []
-    real_build, real_simulator = simulation.MakeTeleoperationDiagram, simulation.make_simulator
+    real_build, real_simulator = simulation.MakeTeleoperationDiagram, simulation.MakeSimulator
 
     def slow_build(*args, **kwargs):
         _burn_cpu(build_burn_s)
@@ -62,8 +62,8 @@ def test_simulate_times_the_advance_and_not_the_build(monkeypatch):
         return slow[-1]
 
     monkeypatch.setattr(simulation, "MakeTeleoperationDiagram", slow_build)
-    monkeypatch.setattr(simulation, "make_simulator", slow_simulator)
-    scenario = load_scenario(scenario_name="Defaults")
+    monkeypatch.setattr(simulation, "MakeSimulator", slow_simulator)
+    scenario = LoadScenario(scenario_name="Defaults")
     cpu = time.process_time()
     record = simulation.simulate(scenario, duration_s=0.5)
     cpu = time.process_time() - cpu

@@ -23,13 +23,13 @@ import pytest
 
 from telesmooth.console.input import ConsoleInputs, console_params, reach_saturation
 from telesmooth.console.status import StatusInputs, status_lines
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.diagrams.simulation import simulate
 from telesmooth.diagrams.teleop import MakeTeleopDiagram, console_pose_names
 from telesmooth.scripts.cli import main
 from telesmooth.scripts.teleop import console_scenario
 from telesmooth.scripts.teleop_report import write_teleop_report
-from telesmooth.systems.flexible_arm import make_simulator
+from telesmooth.systems.flexible_arm import MakeSimulator
 from telesmooth.systems.operator_console import OperatorConsole
 
 DOWNLINK = "{delay_s: 0.5}"
@@ -38,9 +38,9 @@ DURATION_S = 33.5                        # Defaults: the recording + 3 s settle
 
 
 def _run(text, duration_s=DURATION_S):
-    scenario = load_scenario(scenario_text=text)
+    scenario = LoadScenario(scenario_text=text)
     handles = MakeTeleopDiagram(scenario)
-    simulator = make_simulator(handles.diagram, scenario.onboard)
+    simulator = MakeSimulator(handles.diagram, scenario.onboard)
     simulator.Initialize()
     simulator.AdvanceTo(duration_s)
     return handles, simulator.get_context()
@@ -183,14 +183,14 @@ class _ScriptedControls:
 
 
 def test_a_session_replays_as_a_recording(tmp_path):
-    scenario = console_scenario(load_scenario())
+    scenario = console_scenario(LoadScenario())
     names = console_pose_names(scenario)
     pose0 = np.array(scenario.haptic.live_initial_pose)
     console = OperatorConsole(
         console_params(names, saturate=reach_saturation(scenario.arm)),
         _ScriptedControls(pose0), initial_pose=pose0)
     handles = MakeTeleopDiagram(scenario, console=console)
-    simulator = make_simulator(handles.diagram, scenario.onboard)
+    simulator = MakeSimulator(handles.diagram, scenario.onboard)
     simulator.Initialize()
     simulator.AdvanceTo(12.0)
     out = tmp_path / "session"
@@ -199,7 +199,7 @@ def test_a_session_replays_as_a_recording(tmp_path):
     session = np.loadtxt(out / "commands.csv", delimiter=",", skiprows=1)
     # The hand moved +x by 0.2 m and the robot was sent there.
     assert session[-1, 3] != session[0, 3]
-    replay = simulate(load_scenario(scenario_text="{haptic: {source: file, file: '%s'}}"
+    replay = simulate(LoadScenario(scenario_text="{haptic: {source: file, file: '%s'}}"
                                     % (out / "operator.npz")), duration_s=12.0)
     count = min(len(replay.packet_seq), session.shape[0])
     assert count >= 47

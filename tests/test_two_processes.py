@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from process_fixtures import PROCESS_TEST_TIMEOUT_S, worker_port
 
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.diagrams.simulation import simulate
 from telesmooth.lcm_types import lcmt_teleop_joint_command
 from telesmooth.lcm_types.channels import TELEOP_JOINT_COMMAND
@@ -85,7 +85,7 @@ def test_logged_uplink_decodes_at_4hz_and_equals_the_single_process_run(two_proc
     assert len(messages) == int(DURATION_S / 0.25)
     np.testing.assert_array_equal(np.diff([m.utime for m in messages]), 250_000)
 
-    record = simulate(load_scenario(scenario_text=SCENARIO_TEXT), duration_s=DURATION_S)
+    record = simulate(LoadScenario(scenario_text=SCENARIO_TEXT), duration_s=DURATION_S)
     assert list(record.packet_seq[:len(messages)]) == [m.seq for m in messages]
     epoch = json.loads((out / "onboard_report.json").read_text())["onboard_epoch"]
     for message, q in zip(messages, record.q_sent):

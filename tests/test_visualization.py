@@ -13,7 +13,7 @@ from pydrake.systems.framework import DiagramBuilder
 from telesmooth.arms.workspace import AIR_BEARING_WORKSPACE, SPACE_ARM_WORKSPACE
 from telesmooth.datasets.haptic_recording import SPATIAL_POSE_NAMES, HapticRecording
 from telesmooth.diagrams import visualization
-from telesmooth.diagrams.scenario import load_scenario
+from telesmooth.diagrams.scenario import LoadScenario
 from telesmooth.diagrams.simulation import record_meshcat_html
 from telesmooth.diagrams.teleoperation import MakeTeleoperationDiagram
 from telesmooth.diagrams.visualization import (
@@ -90,7 +90,7 @@ def test_record_meshcat_html_is_offline_and_shows_the_robot(tmp_path, monkeypatc
         return Meshcat(params)
 
     monkeypatch.setattr(visualization, "Meshcat", spy_meshcat)
-    scenario = load_scenario(scenario_text="{settle_s: 0.0}")
+    scenario = LoadScenario(scenario_text="{settle_s: 0.0}")
     out = tmp_path / "run" / "replay.html"
     messages = []
     figures = record_meshcat_html(scenario, out, duration_s=2.0, progress=messages.append)
@@ -122,7 +122,7 @@ def test_record_meshcat_html_is_offline_and_shows_the_robot(tmp_path, monkeypatc
 
 def test_record_meshcat_html_rejects_bad_duration(tmp_path):
     with pytest.raises(ValueError, match="duration_s"):
-        record_meshcat_html(load_scenario(), tmp_path / "x.html", duration_s=-1.0)
+        record_meshcat_html(LoadScenario(), tmp_path / "x.html", duration_s=-1.0)
     assert not (tmp_path / "x.html").exists()
 
 
@@ -204,12 +204,12 @@ def test_diagram_svg_shows_the_stages_as_boxes(tmp_path):
     # max_depth = 1: the robot's inside (interpolator, plant, tracker) is not drawn.
     assert "command_interpolator" not in svg and "laser_tracker" not in svg
 
-    deeper = diagram_svg(MakeTeleoperationDiagram(load_scenario()).diagram, max_depth=2)
+    deeper = diagram_svg(MakeTeleoperationDiagram(LoadScenario()).diagram, max_depth=2)
     assert "<svg" in deeper and "name=command_interpolator" in deeper
 
 
 def test_diagram_svg_without_dot_says_install_graphviz(monkeypatch):
-    diagram = MakeTeleoperationDiagram(load_scenario()).diagram
+    diagram = MakeTeleoperationDiagram(LoadScenario()).diagram
     monkeypatch.setattr(visualization.shutil, "which", lambda name: None)
     with pytest.raises(RuntimeError, match="install Graphviz"):
         diagram_svg(diagram)
