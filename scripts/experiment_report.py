@@ -591,8 +591,41 @@ def _chain_lines(config: ExperimentConfig, meta: dict) -> list[str]:
     return lines + [""]
 
 
+def _p_by_cell(out: Path, summaries: dict) -> list[tuple[str, str]]:
+    """p_by_cell.png: P of every smoother over the demonstrations, one panel per cell (the
+    box: quartiles; whiskers: 5th-95th percentile; dots beyond)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    writer = FigureWriter(out)
+    columns = 2
+    rows = math.ceil(len(summaries) / columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(12, 3.2 * rows), squeeze=False)
+    for ax, (cell, summary) in zip(axes.ravel(), summaries.items()):
+        runs = [r for r in summary["records"] if r["kind"] == "run" and r["study"] == "main"]
+        labels = [label for label in summary["main"] if label != "original"]
+        data = [[r["metrics"]["improvement_ratio_percent"] for r in runs
+                 if r["label"] == label
+                 and np.isfinite(r["metrics"].get("improvement_ratio_percent", np.nan))]
+                for label in labels]
+        ax.boxplot([d if d else [np.nan] for d in data], orientation="horizontal",
+                   whis=(5, 95), flierprops={"markersize": 2})
+        ax.set_yticks(range(1, len(labels) + 1))
+        ax.set_yticklabels(labels, fontsize=7)
+        ax.invert_yaxis()
+        ax.axvline(0.0, color="k", lw=0.8)
+        ax.set_title(cell, fontsize=9)
+        ax.set_xlabel("P [%] per demonstration", fontsize=8)
+    for ax in axes.ravel()[len(summaries):]:
+        ax.set_visible(False)
+    writer.save(fig, "p_by_cell.png", "P per method over the demonstrations, every cell")
+    return writer.figures
+
+
 def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figures, meta,
-                 verdicts: dict | None = None) -> str:
+                 verdicts: dict | None = None, overview=()) -> str:
     lines = [
         "# telesmooth experiment: the paper's claims on real human demonstrations",
         "",
@@ -640,6 +673,8 @@ def _report_text(config: ExperimentConfig, summaries: dict, claims: dict, figure
     ]
     if verdicts:
         lines += paper_verdicts_markdown(verdicts)
+    for title, name in overview:
+        lines += [f"### {title}", "", f"![{title}]({name})", ""]
     lines += [
         "## The earlier rules' verdicts (kept for comparison)",
         "",
@@ -796,8 +831,9 @@ def _write_report(out: Path, base, config: ExperimentConfig, kept: dict, tasks, 
     figures = {cell: _write_figures(out, summary, prefix=_slug(cell) if len(summaries) > 1
                                     else "", suffix=f" ({cell})" if len(summaries) > 1 else "")
                for cell, summary in summaries.items()}
+    overview = _p_by_cell(out, summaries) if len(summaries) > 1 else []
     report = out / "report.md"
-    text = _report_text(config, summaries, claims, figures, meta, verdicts)
+    text = _report_text(config, summaries, claims, figures, meta, verdicts, overview)
     if missing:
         text = (f"> **Incomplete:** {missing} of {len(tasks)} tasks are not in this folder "
                 "yet (a shard, or an interrupted run: rerun with the same --out to finish, "

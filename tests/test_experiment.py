@@ -511,6 +511,9 @@ def test_shards_merge_into_the_report_of_the_whole_grid(base, tmp_path, monkeypa
 
     assert claims_and_records(tmp_path / "merged") == claims_and_records(tmp_path / "whole")
     assert "Incomplete" not in (tmp_path / "merged" / "report.md").read_text()
+    # Two cells: P of every method in one figure, a panel per cell, shown in the report.
+    assert (tmp_path / "merged" / "p_by_cell.png").stat().st_size > 10_000
+    assert "(p_by_cell.png)" in (tmp_path / "merged" / "report.md").read_text()
     with pytest.raises(ValueError, match="another experiment"):
         merge_experiment_reports(tmp_path / "m2", [tmp_path / "part1"], base,
                                  dataclasses.replace(config, settle_s=3.0), **quiet)
