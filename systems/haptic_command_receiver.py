@@ -3,7 +3,9 @@
 Stand-in for :class:`~telesmooth.systems.haptic_source.HapticSource` when a real device
 driver publishes on ``TELEOP_HAPTIC_COMMAND``. Until the first valid message, after a bad
 one, and when messages stop, the clutch output is 0: the inverse kinematics then holds its
-target, so a silent or broken device can never move the arm.
+target, so a silent or broken device can never move the arm. A thin Drake system around the
+pure step :func:`telesmooth.link.haptic.haptic_step`, whose state lives in the Context as one
+vector.
 """
 
 from __future__ import annotations
@@ -15,6 +17,14 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
 from telesmooth.lcm_types import lcmt_teleop_haptic_command
+from telesmooth.link.haptic import (
+    HapticInputs,
+    HapticState,
+    haptic_flags,
+    haptic_initial_state,
+    haptic_step,
+)
+from telesmooth.systems.codec_state import CodecState
 from telesmooth.systems.timing import check_period
 
 __all__ = ["HapticCommandReceiver", "HapticCommandReceiverConfig"]
@@ -35,27 +45,6 @@ class HapticCommandReceiverConfig:
     def __post_init__(self) -> None:
         check_period("HapticCommandReceiverConfig.period_s", self.period_s)
         check_period("HapticCommandReceiverConfig.timeout_s", self.timeout_s)
-
-
-# Layout of the status state (a float64 vector; the utime is kept exactly as two halves).
-_ENABLE, _ARRIVED, _HAVE_MESSAGE, _UTIME_HIGH, _UTIME_LOW, _REJECTED, _STOP = range(7)
-
-
-def _split_utime(utime) -> tuple[float, float]:
-    """An int64 as (signed high 32 bits, unsigned low 32 bits), both exact in a float64."""
-    value = int(utime)
-    return float(value >> 32), float(value & 0xFFFF_FFFF)
-
-
-def _join_utime(high: float, low: float) -> int:
-    """The int64 that :func:`_split_utime` split."""
-    return (int(high) << 32) | int(low)
-
-
-def _is_default_message(msg) -> bool:
-    """True for the default-constructed message a subscriber outputs before any arrives."""
-    return (msg.utime == 0 and msg.seq == 0 and msg.num_axes == 0
-            and len(msg.pose_desired) == 0 and not msg.enable)
 
 
 class HapticCommandReceiver(LeafSystem):
@@ -108,19 +97,15 @@ class HapticCommandReceiver(LeafSystem):
         self._message_input = self.DeclareAbstractInputPort(
             "lcm_message", AbstractValue.Make(lcmt_teleop_haptic_command()))
         self._undecodable_input = self.DeclareVectorInputPort("message_undecodable", 1)
-        self._pose_state = self.DeclareDiscreteState(pose0)
-        # [enable of last valid message, time it arrived, a message was examined (0/1),
-        #  high and low 32 bits of its utime, rejected]; see the _ENABLE... indices.
-        self._status_state = self.DeclareDiscreteState([0.0, -np.inf, 0.0, 0.0, 0.0, 0.0, 0.0])
+        self._state = CodecState(self, haptic_initial_state(pose0))
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update_pose)
         self.DeclareForcedDiscreteUpdateEvent(self._update_pose)
-        self._pose_output = self.DeclareStateOutputPort("pose_desired", self._pose_state)
-        self._enable_output = self.DeclareVectorOutputPort("enable", 1, self._calc_enable)
-        self._rejected_output = self.DeclareVectorOutputPort(
-            "message_rejected", 1,
-            lambda c, o: o.SetAtIndex(0, self._status(c)[_REJECTED]))
+        self._pose_output = self._state.output("pose_desired", "pose")
+        self._enable_output = self.DeclareVectorOutputPort(
+            "enable", 1, lambda c, o: o.SetAtIndex(0, float(self._flags(c)[0])))
+        self._rejected_output = self._state.output("message_rejected", "rejected")
         self._stop_output = self.DeclareVectorOutputPort(
-            "stop_requested", 1, self._calc_stop)
+            "stop_requested", 1, lambda c, o: o.SetAtIndex(0, float(self._flags(c)[1])))
 
     def get_lcm_message_input_port(self):
         return self._message_input
@@ -140,40 +125,18 @@ class HapticCommandReceiver(LeafSystem):
     def get_stop_requested_output_port(self):
         return self._stop_output
 
-    def _status(self, context):
-        return context.get_discrete_state(self._status_state).get_value()
+    def haptic_state(self, context) -> HapticState:
+        """The stream, as :func:`~telesmooth.link.haptic.haptic_step` left it."""
+        return self._state.get(context)
 
-    def _calc_enable(self, context, output):
-        output.SetAtIndex(0, 1.0 if self._fresh_flag(context, _ENABLE) else 0.0)
-
-    def _calc_stop(self, context, output):
-        output.SetAtIndex(0, 1.0 if self._fresh_flag(context, _STOP) else 0.0)
-
-    def _fresh_flag(self, context, index) -> bool:
-        """The flag ``index`` of the last valid message, while it is fresh and not rejected."""
-        status = self._status(context)
-        fresh = context.get_time() - status[_ARRIVED] <= self._config.timeout_s
-        return bool(status[index] > 0.5 and fresh and status[_REJECTED] < 0.5)
+    def _flags(self, context) -> tuple[bool, bool]:
+        return haptic_flags(self.haptic_state(context), context.get_time(),
+                            self._config.timeout_s)
 
     def _update_pose(self, context, discrete_state):
-        status = np.array(self._status(context))
-        msg = self._message_input.Eval(context)
-        if status[_HAVE_MESSAGE] > 0.5:
-            is_new = int(msg.utime) != _join_utime(status[_UTIME_HIGH], status[_UTIME_LOW])
-        else:
-            is_new = not _is_default_message(msg)
-        if is_new:
-            status[_HAVE_MESSAGE] = 1.0
-            status[_UTIME_HIGH], status[_UTIME_LOW] = _split_utime(msg.utime)
-            pose = np.asarray(msg.pose_desired, dtype=float)
-            if msg.num_axes == self._m and pose.shape == (self._m,) and np.all(np.isfinite(pose)):
-                discrete_state.get_mutable_vector(self._pose_state).SetFromVector(pose)
-                status[_ENABLE], status[_ARRIVED] = float(bool(msg.enable)), context.get_time()
-                status[_STOP] = float(bool(msg.stop))
-                status[_REJECTED] = 0.0
-            else:
-                status[_ENABLE], status[_STOP], status[_REJECTED] = 0.0, 0.0, 1.0
         undecodable = self._undecodable_input
-        if undecodable.HasValue(context) and undecodable.Eval(context)[0] > 0.5:
-            status[_ENABLE], status[_STOP], status[_REJECTED] = 0.0, 0.0, 1.0
-        discrete_state.get_mutable_vector(self._status_state).SetFromVector(status)
+        inputs = HapticInputs(
+            now=context.get_time(), message=self._message_input.Eval(context),
+            undecodable=bool(undecodable.HasValue(context)
+                             and undecodable.Eval(context)[0] > 0.5))
+        self._state.store(discrete_state, haptic_step(self.haptic_state(context), inputs))

@@ -20,6 +20,7 @@ SYSTEMS = Path(__file__).resolve().parents[1] / "systems"
 PURE_STEPS = {
     "collision_checker.CollisionChecker": ("telesmooth.safety.collision_latch", "latch_step"),
     "delay_fifo.DelayFifo": ("telesmooth.safety.fifo", "fifo_step"),
+    "haptic_command_receiver.HapticCommandReceiver": ("telesmooth.link.haptic", "haptic_step"),
     "joint_command_receiver.JointCommandReceiver": ("telesmooth.link.receiver",
                                                     "receiver_step"),
     "link_guard.LinkGuard": ("telesmooth.safety.guard", "guard_step"),
@@ -32,7 +33,6 @@ PURE_STEPS = {
 
 NOT_YET = {
     "command_interpolator.CommandGate": "the ramp between 4 Hz commands and its rejection",
-    "haptic_command_receiver.HapticCommandReceiver": "the haptic packets' checks and timeout",
     "inverse_kinematics.InverseKinematicsSystem": "the IK's holds and the clutch's anchor",
     "laser_tracker.LaserTracker": "the tracker's seeded noise and sample instants",
     "lcm_safe_subscriber.LcmSafeSubscriber": "the packet window and its counts",
