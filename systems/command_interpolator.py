@@ -14,7 +14,8 @@ discrete state, changed once per command; the set-point itself, a closed-form fu
 that ramp and the time, is evaluated by Drake (a ``SymbolicVectorSystem``,
 :func:`RampSetPoint`) whenever the plant reads it.
 
-The numerics are the pure functions :func:`ramp_desired_state` (the oracle of the symbolic
+The numerics are the pure functions of :mod:`telesmooth.safety.command_gate` (re-exported
+here): the gate's step, :func:`ramp_desired_state` (the oracle of the symbolic
 set-point) and :func:`command_violation` (numpy only, tested without a simulator).
 """
 
@@ -32,6 +33,16 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import SymbolicVectorSystem
 
 from telesmooth.arms.joint_vectors import check_joint_limits, check_joint_vector
+from telesmooth.safety.command_gate import (
+    GateParams,
+    GateState,
+    Ramp,
+    command_violation,
+    gate_initial_state,
+    gate_step,
+    ramp_desired_state,
+)
+from telesmooth.systems.codec_state import CodecState
 from telesmooth.systems.timing import check_period
 
 __all__ = [
@@ -121,73 +132,6 @@ class CommandInterpolatorConfig:
         return period, float(offset)
 
 
-def ramp_desired_state(
-    ramp_start_rad: np.ndarray,
-    ramp_target_rad: np.ndarray,
-    ramp_start_time_s: float,
-    ramp_duration_s: float,
-    time_s: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Desired position and velocity on a linear ramp at ``time_s``.
-
-    With q₀ = ``ramp_start_rad``, q₁ = ``ramp_target_rad``, t₀ = ``ramp_start_time_s``,
-    T = ``ramp_duration_s`` and s = clip((t − t₀)/T, 0, 1):
-
-        q_d(t) = q₀ + s·(q₁ − q₀)
-        v_d(t) = (q₁ − q₀)/T   if t₀ ≤ t < t₀ + T,   else 0.
-
-    A step (``"zoh"``) is the degenerate ramp q₀ = q₁.
-
-    Args:
-        ramp_start_rad: q₀, rad; shape (n,).
-        ramp_target_rad: q₁, rad; shape (n,).
-        ramp_start_time_s: t₀, s.
-        ramp_duration_s: T, s (> 0).
-        time_s: t, s.
-
-    Returns:
-        (q_d, v_d): rad and rad/s, each shape (n,).
-    """
-    start = np.asarray(ramp_start_rad, dtype=float)
-    target = np.asarray(ramp_target_rad, dtype=float)
-    elapsed = time_s - ramp_start_time_s
-    if elapsed < 0.0 or elapsed >= ramp_duration_s:
-        velocity = np.zeros_like(target)
-    else:
-        velocity = (target - start) / ramp_duration_s
-    fraction = min(max(elapsed / ramp_duration_s, 0.0), 1.0)
-    # At s = 1 return the target itself, not q₀ + (q₁ − q₀), which can differ in the last bit.
-    position = target.copy() if fraction >= 1.0 else start + fraction * (target - start)
-    return position, velocity
-
-
-def command_violation(
-    q_rad: np.ndarray, lower_rad: np.ndarray, upper_rad: np.ndarray, joint_names
-) -> str | None:
-    """Why a joint command is unsafe, or None if it is finite and within the joint limits.
-
-    Args:
-        q_rad: The command, rad; shape (n,).
-        lower_rad, upper_rad: Joint limits, rad; shape (n,). A command exactly on a limit
-            is accepted.
-        joint_names: Joint names, used in the message; length n.
-
-    Returns:
-        None, or a message naming the first offending joint and its value, e.g.
-        ``"q_commanded[1] (elbow) = nan is not finite"``.
-    """
-    q = np.asarray(q_rad, dtype=float)
-    if q.shape != np.shape(lower_rad):
-        return f"q_commanded has shape {q.shape}, expected {np.shape(lower_rad)}"
-    for index, (value, lower, upper) in enumerate(zip(q, lower_rad, upper_rad)):
-        label = f"q_commanded[{index}] ({joint_names[index]}) = {float(value)!r}"
-        if not math.isfinite(value):
-            return f"{label} is not finite"
-        if not lower <= value <= upper:
-            return f"{label} is outside the joint limits [{float(lower)!r}, {float(upper)!r}]"
-    return None
-
-
 def RampSetPoint(num_joints: int, ramp_duration_s: float, lead_s: float = 0.0, *,
                  continuous_state: bool = False) -> SymbolicVectorSystem:
     r"""The set-point of a ramp, evaluated by Drake: [t₀; q₀; q₁] and the time → [q_d; v_d].
@@ -266,10 +210,11 @@ class CommandGate(LeafSystem):
     :func:`RampSetPoint`); ``command_rejected``: [flag], (1,). Both outputs are state (no
     feedthrough), evaluated by Drake without a Python call.
 
-    State (discrete): the ramp [t₀, q₀, q₁]; the rejected flag [f]; [rejected-command count,
-    last rejected command (n)] (a held invalid command is counted once). The poll (see
-    :meth:`CommandInterpolatorConfig.poll_timing`) is described in
-    :class:`CommandInterpolator`.
+    State (:class:`~telesmooth.safety.command_gate.GateState`, two discrete vectors): the ramp
+    [t₀, q₀, q₁]; the rejected flag, the rejected-command count and the last rejected command
+    (a held invalid command is counted once); updated by
+    :func:`~telesmooth.safety.command_gate.gate_step` at every poll (see
+    :meth:`CommandInterpolatorConfig.poll_timing`; described in :class:`CommandInterpolator`).
     """
 
     def __init__(
@@ -307,19 +252,19 @@ class CommandGate(LeafSystem):
         self._q_commanded_input = self.DeclareVectorInputPort("q_commanded", n)
         self._command_time_input = self.DeclareVectorInputPort("command_time", 1)
 
-        # [t₀, q₀ (n), q₁ (n)]: the ramp in progress.
-        self._ramp_state = self.DeclareDiscreteState(np.concatenate([[0.0], q0, q0]))
-        self._rejected_state = self.DeclareDiscreteState(np.zeros(1))
-        # [number of rejected commands, last rejected command (n)]
-        self._rejections_state = self.DeclareDiscreteState(
-            np.concatenate([[0.0], np.full(n, np.nan)]))
+        self._params = GateParams(joint_names=names, lower_rad=lower, upper_rad=upper,
+                                  interpolation=config.interpolation,
+                                  ramp_duration_s=config.ramp_duration_s)
+        initial = gate_initial_state(q0)
+        # Two state vectors: the ramp [t₀, q₀ (n), q₁ (n)], which the plant's set-point reads
+        # at every step (a state output port: no Python call), and the refusals.
+        self._ramp = CodecState(self, initial.ramp)
+        self._refusals = CodecState(self, initial.refusals)
         poll_period_s, poll_offset_s = config.poll_timing(command_period_s)
         self.DeclarePeriodicDiscreteUpdateEvent(poll_period_s, poll_offset_s,
                                                 self._update_on_poll)
-
-        self._ramp_output = self.DeclareStateOutputPort("ramp", self._ramp_state)
-        self._command_rejected_output = self.DeclareStateOutputPort(
-            "command_rejected", self._rejected_state)
+        self._ramp_output = self.DeclareStateOutputPort("ramp", self._ramp.index)
+        self._command_rejected_output = self._refusals.output("command_rejected", "rejected")
 
     # -- accessors ------------------------------------------------------------------------
 
@@ -347,15 +292,18 @@ class CommandGate(LeafSystem):
     def get_command_rejected_output_port(self):
         return self._command_rejected_output
 
+    def gate_state(self, context) -> GateState:
+        """The gate, as :func:`~telesmooth.safety.command_gate.gate_step` left it."""
+        return GateState(ramp=self._ramp.get(context), refusals=self._refusals.get(context))
+
     def get_rejected_command_count(self, context) -> int:
         """How many distinct commands were rejected so far (in this context)."""
-        return int(context.get_discrete_state(self._rejections_state).get_value()[0])
+        return self._refusals.get(context).count
 
     def get_ramp(self, context) -> tuple[np.ndarray, np.ndarray, float]:
         """(q₀, q₁, t₀) of the current ramp: start (rad), target (rad), start time (s)."""
-        n = self.num_joints
-        ramp = context.get_discrete_state(self._ramp_state).get_value()
-        return ramp[1:1 + n].copy(), ramp[1 + n:].copy(), float(ramp[0])
+        ramp = self._ramp.get(context)
+        return ramp.start.copy(), ramp.target.copy(), float(ramp.start_s)
 
     def SetHoldPosition(self, context, q_rad) -> None:
         """Makes this context hold ``q_rad`` from its current time (see
@@ -364,48 +312,26 @@ class CommandGate(LeafSystem):
         reason = command_violation(q, self._lower, self._upper, self._joint_names)
         if reason is not None:
             raise ValueError(f"SetHoldPosition: {reason}")
-        context.SetDiscreteState(self._ramp_state, np.concatenate([[context.get_time()], q, q]))
-        context.SetDiscreteState(self._rejected_state, [0.0])
+        q = np.array(q, dtype=float)
+        context.SetDiscreteState(self._ramp.index, self._ramp.codec.pack(
+            Ramp(start_s=context.get_time(), start=q, target=q.copy())))
+        context.SetDiscreteState(self._refusals.index, self._refusals.codec.pack(
+            self._refusals.get(context)._replace(rejected=False)))
 
     # -- the poll -------------------------------------------------------------------------
 
     def _update_on_poll(self, context, discrete_state) -> None:
-        n = self.num_joints
-        command = self._q_commanded_input.Eval(context)
-        ramp = context.get_discrete_state(self._ramp_state).get_value()
-        target = ramp[1 + n:]
-        rejected = context.get_discrete_state(self._rejected_state).get_value()[0]
-        if np.array_equal(command, target):
-            if rejected:
-                discrete_state.get_mutable_vector(self._rejected_state).SetAtIndex(0, 0.0)
-            return
-        rejections = context.get_discrete_state(self._rejections_state).get_value()
-        if rejected and np.array_equal(command, rejections[1:], equal_nan=True):
-            return
-        reason = command_violation(command, self._lower, self._upper, self._joint_names)
+        issued = (float(self._command_time_input.Eval(context)[0])
+                  if self._command_time_input.HasValue(context) else None)
+        state, reason = gate_step(self._params, self.gate_state(context),
+                                  self._q_commanded_input.Eval(context), context.get_time(),
+                                  issued)
         if reason is not None:
             _logger.warning(
                 "%s: command rejected at t = %.6f s, holding the current target: %s",
                 self.GetSystemPathname(), context.get_time(), reason)
-            discrete_state.get_mutable_vector(self._rejected_state).SetAtIndex(0, 1.0)
-            discrete_state.get_mutable_vector(self._rejections_state).SetFromVector(
-                np.concatenate([[rejections[0] + 1.0], command]))
-            return
-        now = context.get_time()
-        previous_start_time = ramp[0]
-        start_time = now
-        if self._command_time_input.HasValue(context):
-            issued = float(self._command_time_input.Eval(context)[0])
-            if math.isfinite(issued) and previous_start_time <= issued <= now:
-                start_time = issued
-        if self._config.interpolation == "linear":
-            start, _ = ramp_desired_state(ramp[1:1 + n], target, previous_start_time,
-                                          self._config.ramp_duration_s, start_time)
-        else:
-            start = command
-        discrete_state.get_mutable_vector(self._ramp_state).SetFromVector(
-            np.concatenate([[start_time], start, command]))
-        discrete_state.get_mutable_vector(self._rejected_state).SetAtIndex(0, 0.0)
+        self._ramp.store(discrete_state, state.ramp)
+        self._refusals.store(discrete_state, state.refusals)
 
 
 class CommandInterpolator(Diagram):

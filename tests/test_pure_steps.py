@@ -19,6 +19,7 @@ SYSTEMS = Path(__file__).resolve().parents[1] / "systems"
 
 PURE_STEPS = {
     "collision_checker.CollisionChecker": ("telesmooth.safety.collision_latch", "latch_step"),
+    "command_interpolator.CommandGate": ("telesmooth.safety.command_gate", "gate_step"),
     "delay_fifo.DelayFifo": ("telesmooth.safety.fifo", "fifo_step"),
     "haptic_command_receiver.HapticCommandReceiver": ("telesmooth.link.haptic", "haptic_step"),
     "joint_command_receiver.JointCommandReceiver": ("telesmooth.link.receiver",
@@ -32,7 +33,6 @@ PURE_STEPS = {
 """System → (module, function) of its pure step."""
 
 NOT_YET = {
-    "command_interpolator.CommandGate": "the ramp between 4 Hz commands and its rejection",
     "inverse_kinematics.InverseKinematicsSystem": "the IK's holds and the clutch's anchor",
     "laser_tracker.LaserTracker": "the tracker's seeded noise and sample instants",
     "lcm_safe_subscriber.LcmSafeSubscriber": "the packet window and its counts",
