@@ -7,18 +7,22 @@ system encodes it and delivers the bytes according to a seeded
 :class:`~telesmooth.link.faults.LinkFaultModel`, and the onboard ``JointCommandReceiver``
 examines every delivered packet. The fate of packet k depends only on (seed, k)
 (:meth:`LinkFaultModel.fate`), so the same configuration gives the same faults here and in
-the ``telesmooth link-relay`` process between two real processes.
+the ``telesmooth link-relay`` process between two real processes. A thin Drake system around
+the pure step :func:`telesmooth.link.channel.channel_step`.
 """
 
 from __future__ import annotations
 
-import copy
-import dataclasses
-
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from telesmooth.link.faults import LinkFaultConfig, LinkQueue
+from telesmooth.link.channel import (
+    ChannelState,
+    channel_counts,
+    channel_initial_state,
+    channel_step,
+)
+from telesmooth.link.faults import LinkFaultConfig
 from telesmooth.systems.lcm_safe_subscriber import RECENT_PACKETS
 from telesmooth.systems.timing import check_period
 
@@ -26,22 +30,6 @@ __all__ = ["LINK_COUNTS", "LinkChannel"]
 
 LINK_COUNTS = ("sent", "delivered", "lost", "duplicated", "held_back")
 """The ``link_counts`` output, in this order."""
-
-
-@dataclasses.dataclass(frozen=True)
-class _LinkState:
-    """Everything in flight (replaced as a whole; lives in an abstract state)."""
-
-    last_key: tuple | None = None     # (session_id, seq) of the last packet taken from input
-    queue: LinkQueue | None = None    # in flight; copied before any change (Context value)
-    delivered: tuple = ()             # the last RECENT_PACKETS deliveries, (number, bytes)
-    delivered_count: int = 0
-
-    def __deepcopy__(self, memo):
-        # Immutable (the queue is copied before any change, _poll), so a Context's copy may
-        # share it: Drake clones abstract state values at every update, and a deep copy of
-        # the packets in flight made the deployed chain's link cost 60 % of a run.
-        return self
 
 
 class LinkChannel(LeafSystem):
@@ -90,7 +78,7 @@ class LinkChannel(LeafSystem):
         self._message_input = self.DeclareAbstractInputPort(
             "lcm_message", AbstractValue.Make(lcm_type()))
         self._state = self.DeclareAbstractState(AbstractValue.Make(
-            _LinkState(queue=LinkQueue(config))))
+            channel_initial_state(config)))
         self.DeclarePeriodicUnrestrictedUpdateEvent(poll_period_s, poll_offset_s, self._poll)
         self._packets_output = self.DeclareAbstractOutputPort(
             "packets", lambda: AbstractValue.Make(()),
@@ -115,34 +103,15 @@ class LinkChannel(LeafSystem):
 
     def counts(self, context) -> dict:
         """{name: count} of :data:`LINK_COUNTS` in ``context``."""
-        link = self._link(context)
-        model = link.queue.counts()
-        return {"sent": model["sent"], "delivered": link.delivered_count,
-                "lost": model["lost"], "duplicated": model["duplicated"],
-                "held_back": model["reordered"]}
+        return channel_counts(self._link(context))
 
-    def _link(self, context) -> _LinkState:
+    def _link(self, context) -> ChannelState:
         return context.get_abstract_state(self._state).get_value()
 
     def _poll(self, context, state):
-        link = self._link(context)
-        now = context.get_time()
-        msg = self._message_input.Eval(context)
-        # Telemetry has no session: its seq alone numbers it.
-        key = (int(getattr(msg, "session_id", 0)), int(msg.seq))
-        new_packet = msg.seq >= 0 and key != link.last_key
-        next_time = link.queue.next_delivery_time()
-        if not new_packet and (next_time is None or next_time > now):
+        after = channel_step(self._link(context), context.get_time(),
+                             self._message_input.Eval(context), keep=RECENT_PACKETS)
+        if after is None:
             return EventStatus.DidNothing()
-        # The queue in the Context is never mutated: change a copy, store the copy.
-        queue = copy.deepcopy(link.queue)
-        if new_packet:
-            queue.send(queue.counts()["sent"], now, msg.encode())
-        due = queue.due(now)
-        number = link.delivered[-1][0] if link.delivered else 0
-        new = tuple((number + k + 1, payload) for k, payload in enumerate(due))
-        state.get_mutable_abstract_state(self._state).set_value(_LinkState(
-            last_key=key if new_packet else link.last_key, queue=queue,
-            delivered=(link.delivered + new)[-RECENT_PACKETS:],
-            delivered_count=link.delivered_count + len(due)))
+        state.get_mutable_abstract_state(self._state).set_value(after)
         return EventStatus.Succeeded()

@@ -24,6 +24,7 @@ PURE_STEPS = {
     "haptic_command_receiver.HapticCommandReceiver": ("telesmooth.link.haptic", "haptic_step"),
     "joint_command_receiver.JointCommandReceiver": ("telesmooth.link.receiver",
                                                     "receiver_step"),
+    "link_channel.LinkChannel": ("telesmooth.link.channel", "channel_step"),
     "link_guard.LinkGuard": ("telesmooth.safety.guard", "guard_step"),
     "link_monitor.LinkMonitor": ("telesmooth.link.monitor", "monitor_step"),
     "operator_console.OperatorConsole": ("telesmooth.console.input", "console_step"),
@@ -36,7 +37,6 @@ NOT_YET = {
     "inverse_kinematics.InverseKinematicsSystem": "the IK's holds and the clutch's anchor",
     "laser_tracker.LaserTracker": "the tracker's seeded noise and sample instants",
     "lcm_safe_subscriber.LcmSafeSubscriber": "the packet window and its counts",
-    "link_channel.LinkChannel": "the in-process link's in-flight queue",
     "reduced_q_smoother.ReducedQSmoother": "σ's trigger around OnlineCks.step (a method of "
                                            "the smoothing core, not yet a function of state)",
     "robot_predictor.RobotPredictor": "the copies of the onboard chain it simulates",
