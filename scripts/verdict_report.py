@@ -88,9 +88,13 @@ def _rules() -> list[str]:
         "Judged on the states (the paper's quantity) and, apart, on the FD of the packets "
         "the robot receives. Both thresholds are choices; the figures behind them are below.",
         "",
-        f"The readings (variants) of the rules: {readings}. "
+        f"The readings (variants) of the rules: {readings} (the joint velocity deformation "
+        "is over the whole run in every reading: the records have no motion-phase figure for "
+        "it). "
         f"The verdicts above are those of the default reading ({default}); the robustness "
-        "column names each axis whose other value alone changes a cell's verdict.", ""]
+        "column names each axis whose other value alone changes a cell's verdict (one axis at "
+        "a time; the robustness table counts the readings, all 16, in which the claim "
+        "holds). A claim whose methods did not all run in a cell is not tested there.", ""]
 
 
 def _robustness_table(result: dict) -> str:

@@ -12,7 +12,7 @@ two means:
 * a stated **practical-equivalence margin** m (e.g. 1 percentage point of P, or the tracker's
   0.001 mm for e): a difference smaller than m either way is a tie, whatever its p-value.
 
-:func:`compare_paired` turns these into one of :data:`PAIR_VERDICTS`; :func:`cell_verdict`
+:func:`compare_paired` turns these into one of :data:`PAIR_VERDICTS`; :func:`claim_over_cells`
 and :func:`robustness` combine verdicts over cells and over the reasonable variants of a
 rule (the KF form, e at command instants or at 100 Hz, …).
 """
@@ -23,7 +23,7 @@ import dataclasses
 
 import numpy as np
 
-__all__ = ["PAIR_VERDICTS", "PairedComparison", "cell_verdict", "compare_paired",
+__all__ = ["PAIR_VERDICTS", "PairedComparison", "claim_over_cells", "compare_paired",
            "median_interval", "robustness"]
 
 PAIR_VERDICTS = ("better", "tie", "worse", "inconclusive")
@@ -131,26 +131,29 @@ def compare_paired(a, b, *, margin: float, higher_is_better: bool,
                             higher_is_better=higher_is_better, verdict=verdict)
 
 
-def cell_verdict(verdicts: dict, wanted: str = "better") -> str:
-    """A claim's verdict over cells from each cell's verdict: ``holds`` when every cell is
-    ``wanted``, ``tie`` when every cell is a tie, ``inconclusive`` when every cell is,
-    ``does not hold`` when none is ``wanted``, else ``partly (cells …)`` naming the cells where
-    it holds; the cells where it is inconclusive are named after a semicolon."""
+def claim_over_cells(verdicts: dict) -> str:
+    """A claim's verdict over cells from each cell's (``holds``, ``tie``, ``partly``,
+    ``inconclusive``, ``does not hold``): ``holds`` when it holds in every cell, ``tie`` or
+    ``inconclusive`` when every cell is one, ``does not hold`` when it neither holds nor partly
+    holds in any cell, else ``partly (…)`` naming where it holds, where partly and where it is
+    inconclusive ("; inconclusive in …" after ``does not hold`` too). Cells are joined by
+    " and " (their names may hold commas: "lab, 1×")."""
     if not verdicts:
         raise ValueError("no cells")
-    holding = [cell for cell, verdict in verdicts.items() if verdict == wanted]
-    unclear = [cell for cell, verdict in verdicts.items() if verdict == "inconclusive"]
-    if len(holding) == len(verdicts):
-        return "holds"
-    if all(verdict == "tie" for verdict in verdicts.values()):
-        return "tie"
-    if len(unclear) == len(verdicts):
-        return "inconclusive"
-    # Cells are joined by " and " (their names may hold commas: "lab, 1×").
-    aside = ("; inconclusive in " + " and ".join(str(cell) for cell in unclear)) if unclear else ""
-    if not holding:
-        return "does not hold" + aside
-    return "partly (" + " and ".join(str(cell) for cell in holding) + aside + ")"
+    values = list(verdicts.values())
+    for single in ("holds", "tie", "inconclusive"):
+        if all(verdict == single for verdict in values):
+            return single
+
+    def cells(kind):
+        return " and ".join(str(c) for c, verdict in verdicts.items() if verdict == kind)
+
+    unclear = ("inconclusive in " + cells("inconclusive")) if "inconclusive" in values else ""
+    if "holds" not in values and "partly" not in values:
+        return "does not hold" + (f"; {unclear}" if unclear else "")
+    parts = [f"{word} in {cells(word)}" if word == "partly" else f"in {cells(word)}"
+             for word in ("holds", "partly") if word in values]
+    return "partly (" + "; ".join(parts + ([unclear] if unclear else [])) + ")"
 
 
 def robustness(verdicts_by_variant: dict) -> str:

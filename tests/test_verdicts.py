@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from telesmooth.studies.verdicts import (
-    cell_verdict,
+    claim_over_cells,
     compare_paired,
     median_interval,
     robustness,
@@ -106,16 +106,21 @@ def test_bad_arguments():
 
 
 def test_claims_over_cells_and_variants():
-    assert cell_verdict({"lab 1x": "better", "lab 4x": "better"}) == "holds"
-    assert cell_verdict({"lab 1x": "tie", "lab 4x": "tie"}) == "tie"
-    assert cell_verdict({"lab 1x": "tie", "lab 4x": "worse"}) == "does not hold"
-    assert cell_verdict({"lab 1x": "better", "lab 4x": "tie",
-                         "lightweight 4x": "better"}) == "partly (lab 1x and lightweight 4x)"
-    assert cell_verdict({"a": "inconclusive", "b": "inconclusive"}) == "inconclusive"
-    assert cell_verdict({"a": "not", "b": "inconclusive"}) == (
+    over = claim_over_cells
+    assert over({"lab 1x": "holds", "lab 4x": "holds"}) == "holds"
+    assert over({"lab 1x": "tie", "lab 4x": "tie"}) == "tie"
+    assert over({"lab 1x": "tie", "lab 4x": "does not hold"}) == "does not hold"
+    assert over({"lab 1x": "holds", "lab 4x": "tie",
+                 "lightweight 4x": "holds"}) == "partly (in lab 1x and lightweight 4x)"
+    assert over({"a": "inconclusive", "b": "inconclusive"}) == "inconclusive"
+    assert over({"a": "does not hold", "b": "inconclusive"}) == (
         "does not hold; inconclusive in b")
-    assert cell_verdict({"a": "better", "b": "inconclusive", "c": "not"}) == (
-        "partly (a; inconclusive in b)")
+    assert over({"a": "holds", "b": "inconclusive", "c": "does not hold"}) == (
+        "partly (in a; inconclusive in b)")
+    # A cell where the claim partly holds is not a cell where it fails.
+    assert over({"a": "partly", "b": "does not hold", "c": "partly"}) == (
+        "partly (partly in a and c)")
+    assert over({"a": "holds", "b": "partly"}) == "partly (in a; partly in b)"
     assert robustness({"kf": "holds", "kf-predictor": "holds"}) == "holds"
     assert robustness({"kf": "holds", "kf-predictor": "does not hold"}) == (
         "depends on kf → holds, kf-predictor → does not hold")
