@@ -97,12 +97,17 @@ def _with_p(records: list[dict]) -> list[dict]:
 def summarize_cells(records: list[dict]) -> dict:
     """:func:`summarize` per (plant, speed) cell: {cell name: summary with "plant" and
     "speed"}, in the order the cells first appear."""
+    return {cell_name(plant, speed): {"plant": plant, "speed": speed, **summarize(rows)}
+            for (plant, speed), rows in _by_cell(records).items()}
+
+
+def _by_cell(records: list[dict]) -> dict:
+    """{(plant, speed): the records of that cell}, in the order the cells first appear."""
     cells: dict[tuple, list] = {}
     for record in records:
         cells.setdefault((record.get("plant", "lab"), record.get("speed", 1.0)), []).append(
             record)
-    return {cell_name(plant, speed): {"plant": plant, "speed": speed, **summarize(rows)}
-            for (plant, speed), rows in cells.items()}
+    return cells
 
 
 def summarize(records: list[dict]) -> dict:
@@ -706,7 +711,8 @@ def _ranks(roles: dict) -> dict:
 
 
 def _claims_in_cell(rows: list[dict], variant: dict) -> dict:
-    """Every claim's verdict, with its pairs or figures, in one cell under ``variant``."""
+    """Every claim's verdict but C8's (which no reading changes: :func:`_c8_cell`), with its
+    pairs or figures, in one cell under ``variant``."""
     demos = _demonstrations(rows, variant)
     for roles in demos.values():
         for role, record in list(roles.items()):
@@ -757,7 +763,6 @@ def _claims_in_cell(rows: list[dict], variant: dict) -> dict:
         if not needed <= present:
             out[claim] = {"verdict": "not tested",
                           "missing": sorted(needed - present)}
-    out["C8"] = _c8_cell(rows)
     return out
 
 
@@ -827,15 +832,14 @@ def paper_verdicts(records: list[dict], kf_form: str = "kf") -> dict:
         raise ValueError(f"kf_form = {kf_form!r} must be one of {KF_FORMS}")
     variants = _variants(kf_form)
     default = variants[0]
-    cells: dict = {}
-    for record in records:
-        cells.setdefault(cell_name(record.get("plant", "lab"), record.get("speed", 1.0)),
-                         []).append(record)
-    cells = {cell: _with_p([r for r in rows if "error" not in r]) for cell, rows in cells.items()}
+    # P is taken per pair from the reading's own e (_p_of): the summaries' P is not needed.
+    cells = {cell_name(*key): [r for r in rows if "error" not in r]
+             for key, rows in _by_cell(records).items()}
     out_cells: dict = {}
     kf_forms: dict = {}
     for cell, rows in cells.items():
-        results = [_claims_in_cell(rows, variant) for variant in variants]
+        c8 = _c8_cell(rows)          # the same in every reading
+        results = [{**_claims_in_cell(rows, variant), "C8": c8} for variant in variants]
         per_claim = {}
         for claim in PAPER_CLAIMS:
             by_variant = {variant_name(v): r[claim]["verdict"] for v, r in zip(variants, results)}

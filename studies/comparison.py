@@ -573,7 +573,8 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
     else:
         response_t = (np.arange(num_samples) + delay) * period + ramp
     measured = sample_at(tracker_t, tool, response_t)
-    e = tracking_errors(fk(estimate), measured)
+    estimate_tool = fk(estimate)
+    e = tracking_errors(estimate_tool, measured)
     e_operator = tracking_errors(setup.operator_tool_m, measured)
     # What the plant receives: start pose ×3, the packets, the last packet held.
     received = with_rest_history(packets, q_start)
@@ -597,7 +598,7 @@ def run_method(setup: ComparisonSetup, method: str, *, settings: SmoothingSettin
     metrics["response_error_tracker_rate_m"] = {
         "mean": float(e_tracker.mean()), "max": float(e_tracker.max()),
         **_phase_means(e_tracker, _tracker_phases(setup.motion, response_t, ramp, tracker_t))}
-    metrics["motion_deformation"] = _motion_deformation(setup, estimate)
+    metrics["motion_deformation"] = _motion_deformation(setup, estimate, estimate_tool)
     metrics["operator_error_m"] = {"mean": float(e_operator.mean()),
                                    "max": float(e_operator.max())}
     metrics["improvement_ratio_percent"] = math.nan
@@ -683,16 +684,18 @@ def _tracker_phases(motion, response_t: np.ndarray, ramp_s: float, tracker_t: np
     return (tracker_t >= begin) & (tracker_t <= end), tracker_t > end
 
 
-def _motion_deformation(setup: ComparisonSetup, estimate: np.ndarray) -> dict:
+def _motion_deformation(setup: ComparisonSetup, estimate: np.ndarray,
+                        estimate_tool: np.ndarray) -> dict:
     """The deformations over the operator's motion phase only (the holds before and after
     it add zeros to every method's mean): worst joint's mean position deformation, rad, and
-    the mean Cartesian deformation, m; NaN without motion."""
+    the mean Cartesian deformation, m; NaN without motion. ``estimate_tool`` is
+    FK(``estimate``), already computed for e."""
     if setup.motion is None:
         return {"position_mean_rad": math.nan, "cartesian_mean_m": math.nan}
     first, last = setup.motion
     part = slice(first, last + 1)
     position = deformation_statistics(estimate[part], setup.q_original[part])
-    cartesian = np.linalg.norm(setup.fk(estimate[part]) - setup.operator_tool_m[part], axis=-1)
+    cartesian = np.linalg.norm(estimate_tool[part] - setup.operator_tool_m[part], axis=-1)
     return {"position_mean_rad": float(np.max(position["mean"])),
             "cartesian_mean_m": float(cartesian.mean())}
 

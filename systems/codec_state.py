@@ -44,6 +44,10 @@ class CodecState:
             values = values.get_mutable_discrete_state()
         values.get_mutable_vector(self.index).SetFromVector(self.codec.pack(state))
 
+    def set(self, context, state) -> None:
+        """Writes ``state`` into ``context`` (the system's) outside an update."""
+        context.SetDiscreteState(self.index, self.codec.pack(state))
+
     def output(self, name: str, where):
         """Declares output ``name`` as part of the state: ``where`` a field's name or a
         slice of the packed vector. It depends on the state only (no feedthrough)."""

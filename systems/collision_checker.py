@@ -177,12 +177,10 @@ class CollisionChecker(LeafSystem):
             extra_filtered_pairs=extra_filtered_pairs,
         )
         n = arm.num_joints
-        self._num_joints = n
-        self._latch_samples = config.latch_samples
 
         self._q_target_input = self.DeclareVectorInputPort("q_target", n)
         self._state = CodecState(self, latch_initial_state(
-            n, self._latch_samples, config.distance_horizon_m))
+            n, config.latch_samples, config.distance_horizon_m))
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update)
         flags = self._state.codec.field_slice("flags")
         self._min_distance_output = self._state.output("min_distance", "distance_m")
@@ -202,7 +200,7 @@ class CollisionChecker(LeafSystem):
     @property
     def latch_samples(self) -> int:
         """N, the number of samples in the latch window."""
-        return self._latch_samples
+        return self._config.latch_samples
 
     @property
     def collision_model(self) -> ArmCollisionModel:

@@ -245,9 +245,6 @@ class CommandGate(LeafSystem):
             "initial_position_rad", np.zeros(n) if initial_position_rad is None
             else initial_position_rad, names, lower=lower, upper=upper)
         self._config = config
-        self._joint_names = names
-        self._lower = lower
-        self._upper = upper
 
         self._q_commanded_input = self.DeclareVectorInputPort("q_commanded", n)
         self._command_time_input = self.DeclareVectorInputPort("command_time", 1)
@@ -274,11 +271,11 @@ class CommandGate(LeafSystem):
 
     @property
     def joint_names(self) -> tuple[str, ...]:
-        return self._joint_names
+        return self._params.joint_names
 
     @property
     def num_joints(self) -> int:
-        return len(self._joint_names)
+        return len(self._params.joint_names)
 
     def get_q_commanded_input_port(self):
         return self._q_commanded_input
@@ -308,24 +305,25 @@ class CommandGate(LeafSystem):
     def SetHoldPosition(self, context, q_rad) -> None:
         """Makes this context hold ``q_rad`` from its current time (see
         :meth:`CommandInterpolator.SetHoldPosition`)."""
-        q = check_joint_vector("q_rad", q_rad, self._joint_names)
-        reason = command_violation(q, self._lower, self._upper, self._joint_names)
+        params = self._params
+        q = check_joint_vector("q_rad", q_rad, params.joint_names)
+        reason = command_violation(q, params.lower_rad, params.upper_rad, params.joint_names)
         if reason is not None:
             raise ValueError(f"SetHoldPosition: {reason}")
         q = np.array(q, dtype=float)
-        context.SetDiscreteState(self._ramp.index, self._ramp.codec.pack(
-            Ramp(start_s=context.get_time(), start=q, target=q.copy())))
-        context.SetDiscreteState(self._refusals.index, self._refusals.codec.pack(
-            self._refusals.get(context)._replace(rejected=False)))
+        self._ramp.set(context, Ramp(start_s=context.get_time(), start=q, target=q.copy()))
+        self._refusals.set(context, self._refusals.get(context)._replace(rejected=False))
 
     # -- the poll -------------------------------------------------------------------------
 
     def _update_on_poll(self, context, discrete_state) -> None:
         issued = (float(self._command_time_input.Eval(context)[0])
                   if self._command_time_input.HasValue(context) else None)
-        state, reason = gate_step(self._params, self.gate_state(context),
-                                  self._q_commanded_input.Eval(context), context.get_time(),
-                                  issued)
+        before = self.gate_state(context)
+        state, reason = gate_step(self._params, before, self._q_commanded_input.Eval(context),
+                                  context.get_time(), issued)
+        if state is before:      # most polls: the held command is the target (nothing to write)
+            return
         if reason is not None:
             _logger.warning(
                 "%s: command rejected at t = %.6f s, holding the current target: %s",

@@ -93,7 +93,6 @@ class HapticCommandReceiver(LeafSystem):
         if pose0.ndim != 1 or pose0.size == 0 or not np.all(np.isfinite(pose0)):
             raise ValueError(f"initial_pose = {initial_pose!r} must be a finite, non-empty vector")
         self._config = config
-        self._m = pose0.size
         self._message_input = self.DeclareAbstractInputPort(
             "lcm_message", AbstractValue.Make(lcmt_teleop_haptic_command()))
         self._undecodable_input = self.DeclareVectorInputPort("message_undecodable", 1)
@@ -139,4 +138,7 @@ class HapticCommandReceiver(LeafSystem):
             now=context.get_time(), message=self._message_input.Eval(context),
             undecodable=bool(undecodable.HasValue(context)
                              and undecodable.Eval(context)[0] > 0.5))
-        self._state.store(discrete_state, haptic_step(self.haptic_state(context), inputs))
+        before = self.haptic_state(context)
+        after = haptic_step(before, inputs)
+        if after is not before:      # an old message examined again changes nothing
+            self._state.store(discrete_state, after)

@@ -5,7 +5,7 @@ coordinate with its keys, an Enable button on Space, a Stop button on Escape) an
 (with the page's gamepad and how many browsers are connected). :class:`OperatorConsole` is
 the thin Drake system around the pure step :func:`telesmooth.console.input.console_step`:
 every haptic period it reads the controls, steps the console's state (kept in the Context
-as one vector, :class:`~telesmooth.safety.state_codec.VectorCodec`) and outputs the hand
+as one vector, :class:`~telesmooth.systems.codec_state.CodecState`) and outputs the hand
 pose, the clutch and the stop like a haptic device (``HapticCommandReceiver``'s ports).
 
 Meshcat is not thread-safe: the Simulator that runs this system must run in the thread that
@@ -28,7 +28,7 @@ from telesmooth.console.input import (
     console_initial_state,
     console_step,
 )
-from telesmooth.safety.state_codec import VectorCodec
+from telesmooth.systems.codec_state import CodecState
 
 __all__ = ["ENABLE_BUTTON", "KEYS", "MeshcatControls", "OperatorConsole", "SLIDERS",
            "STOP_BUTTON"]
@@ -140,8 +140,7 @@ class OperatorConsole(LeafSystem):
         self._controls = controls
         self._fk = forward_kinematics
         initial = console_initial_state(params, initial_pose)
-        self._codec = VectorCodec(initial)
-        self._state = self.DeclareDiscreteState(self._codec.pack(initial))
+        self._state = CodecState(self, initial)
         if num_joints is not None:
             self._q_anchor_input = self.DeclareVectorInputPort("q_anchor", int(num_joints))
             self._anchor_input = self.DeclareVectorInputPort("anchor", 1)
@@ -152,14 +151,7 @@ class OperatorConsole(LeafSystem):
         # so does a logger: the hand logged at t is the hand the IK read at t.
         self.DeclarePeriodicDiscreteUpdateEvent(params.period_s, 0.0, self._update)
 
-        def output(port, field):
-            part = self._codec.field_slice(field)
-
-            def calc(context, out):
-                out.SetFromVector(context.get_discrete_state(self._state).get_value()[part])
-            return self.DeclareVectorOutputPort(port, part.stop - part.start, calc,
-                                                {self.xd_ticket()})
-
+        output = self._state.output
         self._pose_output = output("pose_desired", "pose")
         self._enable_output = output("enable", "enabled")
         self._stop_output = output("stop_requested", "stop")
@@ -172,7 +164,7 @@ class OperatorConsole(LeafSystem):
 
     def console_state(self, context):
         """The :class:`~telesmooth.console.input.ConsoleState` in ``context``."""
-        return self._codec.unpack(context.get_discrete_state(self._state).get_value())
+        return self._state.get(context)
 
     def get_q_anchor_input_port(self):
         return self._q_anchor_input
@@ -209,7 +201,7 @@ class OperatorConsole(LeafSystem):
         new, outputs = console_step(self._params, current, inputs)
         if outputs.set_sliders is not None:
             self._controls.set_sliders(outputs.set_sliders)
-        discrete_state.get_mutable_vector(self._state).SetFromVector(self._codec.pack(new))
+        self._state.store(discrete_state, new)
 
     @staticmethod
     def notice_text(value: float) -> str:

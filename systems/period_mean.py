@@ -15,13 +15,13 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from telesmooth.arms.joint_vectors import check_finite_per_joint
-from telesmooth.safety.state_codec import VectorCodec
 from telesmooth.smoothing.period_mean import (
     PeriodMeanState,
     period_mean,
     period_mean_initial_state,
     period_mean_step,
 )
+from telesmooth.systems.codec_state import CodecState
 from telesmooth.systems.timing import check_period, samples_per_period
 
 __all__ = ["PeriodMean", "PeriodMeanConfig"]
@@ -82,8 +82,7 @@ class PeriodMean(LeafSystem):
             "initial_position_rad", initial_position_rad, n)
         self._q_target_input = self.DeclareVectorInputPort("q_target", n)
         initial = period_mean_initial_state(m, q0)
-        self._codec = VectorCodec(initial)
-        self._state_index = self.DeclareDiscreteState(self._codec.pack(initial))
+        self._state = CodecState(self, initial)
         self.DeclarePeriodicDiscreteUpdateEvent(config.sample_period_s, 0.0, self._update_ring)
         # A forced update runs the same tick on demand (CalcForcedDiscreteVariableUpdate).
         self.DeclareForcedDiscreteUpdateEvent(self._update_ring)
@@ -97,7 +96,7 @@ class PeriodMean(LeafSystem):
 
     def period_mean_state(self, context) -> PeriodMeanState:
         """The ring in ``context``."""
-        return self._codec.unpack(context.get_discrete_state(self._state_index).get_value())
+        return self._state.get(context)
 
     def _calc_q_mean(self, context, output):
         output.SetFromVector(period_mean(self.period_mean_state(context)))
@@ -105,5 +104,4 @@ class PeriodMean(LeafSystem):
     def _update_ring(self, context, discrete_state):
         state = period_mean_step(self.period_mean_state(context),
                                  self._q_target_input.Eval(context))
-        discrete_state.get_mutable_vector(self._state_index).SetFromVector(
-            self._codec.pack(state))
+        self._state.store(discrete_state, state)

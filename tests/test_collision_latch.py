@@ -64,7 +64,7 @@ def test_a_held_target_is_not_queried_again_and_a_nan_target_is_a_collision():
 @settings(max_examples=60, deadline=None)
 @given(st.integers(1, 6), st.lists(st.one_of(st.none(), st.floats(-0.05, 0.3)), max_size=40))
 def test_detected_is_any_collision_among_the_last_n_samples(n, stream):
-    query = CountingQuery()
+    query = CountingQuery()      # distance = the sample; its count is not the point here
     state = latch_initial_state(1, n, 0.2)
     window = collections.deque([False] * n, maxlen=n)
     codec = VectorCodec(state)

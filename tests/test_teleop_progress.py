@@ -35,8 +35,8 @@ def test_the_teleop_line_names_the_link_guard_clutch_and_residual():
                            guard_mode=float(GuardMode.TRACK), residual_m=0.00123)
     line = _progress_line(handles(view, SimpleNamespace(stop=False, enabled=True)), CONTEXT,
                           MONITOR)
-    assert line == (f"teleop: t =   12.3 s, real time 0.98×, late ticks 3 (worst 42 ms), "
-                    f"link: telemetry 250 ms old, robot guard {GuardMode.TRACK.label}, clutch "
+    assert line == ("teleop: t =   12.3 s, real time 0.98×, late ticks 3 (worst 42 ms), "
+                    "link: telemetry 250 ms old, robot guard track, clutch "
                     "engaged, prediction residual 1.23 mm")
 
 
