@@ -22,11 +22,13 @@ class CodecState:
     Args:
         system: The LeafSystem (its constructor calls this).
         initial: The step's state before its first update (sets the layout).
+        codec: What packs the state (``pack``, ``unpack``; ``field_slice`` for
+            :meth:`output` by name); None: a VectorCodec of ``initial``'s layout.
     """
 
-    def __init__(self, system, initial):
+    def __init__(self, system, initial, codec=None):
         self._system = system
-        self.codec = VectorCodec(initial)
+        self.codec = VectorCodec(initial) if codec is None else codec
         self.index = system.DeclareDiscreteState(self.codec.pack(initial))
 
     def vector(self, context) -> np.ndarray:

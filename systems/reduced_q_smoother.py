@@ -4,8 +4,9 @@ Consumes the FIFO's newest sample z_k at every uplink tick and emits x̂_{k−L|
 estimate of the sample leaving the FIFO at that tick, so the smoothed command and the raw
 delayed command are the same instant of the operator's motion (docs/method.md §5.1: the FIFO is the
 smoother window; total added latency L·Δt). The numerics are the core's
-:class:`~telesmooth.smoothing.reduced_q.OnlineCks` (docs/method.md §3, §4); this system only keeps
-its state in the Context and wires ports.
+:class:`~telesmooth.smoothing.reduced_q.OnlineCks` (docs/method.md §3, §4), one tick the pure step
+:func:`telesmooth.smoothing.smoother_step.smoother_step`; this system only keeps the step's state
+in the Context and wires ports.
 """
 
 from __future__ import annotations
@@ -17,8 +18,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from telesmooth.arms.joint_vectors import as_per_joint, check_joint_vector
-from telesmooth.safety.limiter import limiter_params, limiter_rest_state, limiter_step
-from telesmooth.safety.state_codec import VectorCodec
+from telesmooth.safety.limiter import limiter_params
 from telesmooth.smoothing.kalman import START_PRIORS
 from telesmooth.smoothing.methods import CHAIN_METHODS, METHOD_ALIASES, method_name
 from telesmooth.smoothing.model import (
@@ -30,7 +30,13 @@ from telesmooth.smoothing.model import (
     JerkModel,
 )
 from telesmooth.smoothing.reduced_q import OnlineCks, ReducedQConfig
-from telesmooth.smoothing.state_vector import OnlineCksStateVector
+from telesmooth.smoothing.smoother_step import (
+    SmootherStepParams,
+    SmootherStepStateVector,
+    smoother_initial_state,
+    smoother_step,
+)
+from telesmooth.systems.codec_state import CodecState
 from telesmooth.systems.timing import check_period
 
 __all__ = ["ONLINE_SMOOTHER_METHODS", "ReducedQSmoother", "ReducedQSmootherConfig"]
@@ -144,9 +150,11 @@ class ReducedQSmoother(LeafSystem):
       lowers it when the command breaks a_max or j_max; never raised).
     - ``triggered``: 1 per joint if this tick's command broke a limit, (J,).
 
-    State: the Online-CKS record (superstate means and covariances of the L+1 blocks, σ, the
-    last three sent positions, the B2 checkpoints) packed into one discrete vector, plus the
-    raw window of the last L+1 samples (for ``pass-through``). Updated at t_k = k·period_s.
+    State: the pure step's :class:`~telesmooth.smoothing.smoother_step.SmootherStepState` (the
+    Online-CKS record: superstate means and covariances of the L+1 blocks, σ, the last three
+    sent positions, the B2 checkpoints; the raw window of the last L+1 samples, for
+    ``pass-through``; the hard limiter's state for ``online-hard``) packed into one discrete
+    vector. Updated at t_k = k·period_s.
 
     Equations per tick (docs/method.md §3.2, §4.2), with X the state after tick k−1:
 
@@ -183,26 +191,20 @@ class ReducedQSmoother(LeafSystem):
             method=config.fixed_lag_method,
             joint_names=joint_names,
         )
-        self._packer = OnlineCksStateVector(self._online)
         q0 = np.zeros(n) if initial_position_rad is None else check_joint_vector(
             "initial_position_rad", initial_position_rad, joint_names)
-        initial = self._online.initial_state(q0, sigma0)
-        lag = config.lag
-        # online-hard: the limits (immutable) here, the limiter's state in the Context.
-        self._limiter = None
-        if config.method == "online-hard":
-            self._limiter = limiter_params(
-                dt_s=config.period_s, max_acceleration=config.max_acceleration_rad_per_s2,
-                max_jerk=config.max_jerk_rad_per_s3, joint_names=joint_names)
-            initial_limiter = limiter_rest_state(self._limiter, q0)
-            self._limiter_codec = VectorCodec(initial_limiter)
+        # online-hard: the limits (immutable) in the params, the limiter's state in the step's.
+        limiter = None if config.method != "online-hard" else limiter_params(
+            dt_s=config.period_s, max_acceleration=config.max_acceleration_rad_per_s2,
+            max_jerk=config.max_jerk_rad_per_s3, joint_names=joint_names)
+        self._params = SmootherStepParams(
+            online=self._online, pass_through=method_name(config.method) == "original",
+            limiter=limiter, period_s=config.period_s)
+        initial = smoother_initial_state(self._params, q0, sigma0)
 
         self._q_sample_input = self.DeclareVectorInputPort("q_sample", n)
         self._reset_input = self.DeclareVectorInputPort("reset", 1)
-        self._online_state = self.DeclareDiscreteState(self._packer.pack(initial))
-        self._raw_window_state = self.DeclareDiscreteState(np.tile(q0, lag + 1))
-        self._limiter_state = (None if self._limiter is None else self.DeclareDiscreteState(
-            self._limiter_codec.pack(initial_limiter)))
+        self._state = CodecState(self, initial, SmootherStepStateVector(self._params, initial))
         self._tick_cache = self.DeclareCacheEntry(
             "tick", ValueProducer(allocate=lambda: AbstractValue.Make(object()),
                                   calc=lambda c, value: value.set_value(self._compute_tick(c))))
@@ -211,15 +213,15 @@ class ReducedQSmoother(LeafSystem):
         self.DeclareForcedDiscreteUpdateEvent(self._update_smoother)
 
         self._q_smoothed_output = self.DeclareVectorOutputPort(
-            "q_smoothed", n, lambda c, out: out.SetFromVector(self._tick(c)[1][:, 0]))
+            "q_smoothed", n, lambda c, out: out.SetFromVector(self._tick(c).output[:, 0]))
         self._state_smoothed_output = self.DeclareVectorOutputPort(
             "state_smoothed", STATE_SIZE * n,
-            lambda c, out: out.SetFromVector(self._tick(c)[1].T.ravel()))
+            lambda c, out: out.SetFromVector(self._tick(c).output.T.ravel()))
         self._sigma_output = self.DeclareVectorOutputPort(
-            "sigma", n, lambda c, out: out.SetFromVector(self._tick(c)[0].sigma))
+            "sigma", n, lambda c, out: out.SetFromVector(self._tick(c).state.online.sigma))
         self._triggered_output = self.DeclareVectorOutputPort(
             "triggered", n,
-            lambda c, out: out.SetFromVector(self._tick(c)[2].astype(float)))
+            lambda c, out: out.SetFromVector(self._tick(c).triggered.astype(float)))
 
     # -- accessors ------------------------------------------------------------------------
 
@@ -262,47 +264,10 @@ class ReducedQSmoother(LeafSystem):
         return self._tick_cache.Eval(context)
 
     def _compute_tick(self, context):
-        """(new core state, output block (J, 4), triggered (J,), new raw window, new limiter
-        state or None) at this time."""
-        n, lag = len(self._joint_names), self._config.lag
-        z = np.array(self._q_sample_input.Eval(context), dtype=float)
-        state = self._packer.unpack(context.get_discrete_state(self._online_state).get_value())
-        raw = context.get_discrete_state(self._raw_window_state).get_value().reshape(lag + 1, n)
+        """The tick at this time (:func:`smoother_step` on the state and the inputs)."""
         reset = self._reset_input.HasValue(context) and self._reset_input.Eval(context)[0] > 0.5
-        if not np.all(np.isfinite(z)):
-            # The FIFO never passes a non-finite sample; if a user wires one in anyway, hold:
-            # restart at rest at the last smoothed position rather than propagate NaN.
-            z = self._online.smoother.output(state.smoother)[:, 0]
-            reset = True
-        if reset:
-            state = self._online.initial_state(z, state.sigma)
-            raw = np.tile(z, (lag + 1, 1))
-        new_state, output, triggered = self._online.step(state, z)
-        new_raw = np.vstack([raw[1:], z[None, :]])
-        if method_name(self._config.method) == "original":   # pass-through
-            output = np.zeros((n, STATE_SIZE))
-            output[:, 0] = new_raw[0]
-        new_limiter = None
-        if self._limiter is not None:
-            limiter = self._limiter_codec.unpack(
-                context.get_discrete_state(self._limiter_state).get_value())
-            if reset:
-                # The collision hold (or a non-finite sample): rest at the held pose, as the
-                # smoother does.
-                limiter = limiter_rest_state(self._limiter, z)
-            limiter, _ = limiter_step(self._limiter, limiter, output[:, 0])
-            sent = limiter.sent
-            output = np.stack([limiter.position, limiter.velocity, limiter.acceleration,
-                               (sent[-1] - 3 * sent[-2] + 3 * sent[-3] - sent[-4])
-                               / self._config.period_s**3], axis=1)
-            new_limiter = self._limiter_codec.pack(limiter)
-        return new_state, output, triggered, new_raw, new_limiter
+        return smoother_step(self._params, self._state.get(context),
+                             self._q_sample_input.Eval(context), reset)
 
     def _update_smoother(self, context, discrete_state):
-        new_state, _, _, new_raw, new_limiter = self._tick(context)
-        if new_limiter is not None:
-            discrete_state.get_mutable_vector(self._limiter_state).SetFromVector(new_limiter)
-        discrete_state.get_mutable_vector(self._online_state).SetFromVector(
-            self._packer.pack(new_state))
-        discrete_state.get_mutable_vector(self._raw_window_state).SetFromVector(
-            new_raw.ravel())
+        self._state.store(discrete_state, self._tick(context).state)

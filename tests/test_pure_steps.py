@@ -29,6 +29,8 @@ PURE_STEPS = {
     "link_monitor.LinkMonitor": ("telesmooth.link.monitor", "monitor_step"),
     "operator_console.OperatorConsole": ("telesmooth.console.input", "console_step"),
     "period_mean.PeriodMean": ("telesmooth.smoothing.period_mean", "period_mean_step"),
+    "reduced_q_smoother.ReducedQSmoother": ("telesmooth.smoothing.smoother_step",
+                                            "smoother_step"),
     "uplink.Uplink": ("telesmooth.link.uplink", "uplink_step"),
 }
 """System → (module, function) of its pure step."""
@@ -37,8 +39,6 @@ NOT_YET = {
     "inverse_kinematics.InverseKinematicsSystem": "the IK's holds and the clutch's anchor",
     "laser_tracker.LaserTracker": "the tracker's seeded noise and sample instants",
     "lcm_safe_subscriber.LcmSafeSubscriber": "the packet window and its counts",
-    "reduced_q_smoother.ReducedQSmoother": "σ's trigger around OnlineCks.step (a method of "
-                                           "the smoothing core, not yet a function of state)",
     "robot_predictor.RobotPredictor": "the copies of the onboard chain it simulates",
 }
 """System → what its callbacks still decide (to move into a pure step)."""
