@@ -17,6 +17,14 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from telesmooth.arms.chain_kinematics import ChainPoint
+from telesmooth.arms.tracker import (
+    TrackerParams,
+    TrackerSample,
+    tracker_measurement,
+    tracker_noise,
+    tracker_step,
+)
+from telesmooth.systems.codec_state import CodecState
 from telesmooth.systems.timing import check_period
 
 __all__ = ["LaserTracker", "LaserTrackerConfig", "TrackerRecord", "tracker_record"]
@@ -133,8 +141,11 @@ class LaserTracker(LeafSystem):
       rates), [v_link (n), v_motor (n)], rad/s, (2n,): with the angles, the robot's state at
       t_k, which the telemetry carries for the ground's predicted robot.
 
-    State (discrete, updated at t_k = k·period_s, offset 0, and once at initialization):
-    the ``measurement`` vector and the velocities; every output is a part of them
+    State (one discrete vector, updated at t_k = k·period_s, offset 0, and once at
+    initialization): the pure step's :class:`~telesmooth.arms.tracker.TrackerSample`, the
+    ``measurement`` vector and the velocities (:func:`~telesmooth.arms.tracker.tracker_step`
+    assembles it from the plant's state and the tool point this system computes by Drake's
+    forward kinematics); every output is a part of it
     (zero-order hold, no feedthrough). Sample k's noise is
     σ·N(0, I₃) drawn from ``default_rng([seed, k])``, k = round(t_k/period_s).
 
@@ -195,11 +206,12 @@ class LaserTracker(LeafSystem):
         self._config = config
         self._plant = plant
         self._joint_names = names
-        self._num_positions = plant.num_positions()
-        self._motor_index = np.array(motor_index)
-        self._deflection_index = np.array(deflection_index)
-        self._motor_velocity_index = np.array(motor_velocity)
-        self._deflection_velocity_index = np.array(deflection_velocity)
+        self._params = TrackerParams(
+            period_s=config.period_s, noise_m=config.noise_m, seed=config.seed,
+            num_positions=plant.num_positions(), motor_index=np.array(motor_index),
+            deflection_index=np.array(deflection_index),
+            motor_velocity_index=np.array(motor_velocity),
+            deflection_velocity_index=np.array(deflection_velocity))
         self._tool_frame = plant.GetFrameByName(tool_frame_name, model_instance)
         self._world_frame = plant.world_frame()
         self._tool_origin = np.zeros((3, 1))
@@ -212,33 +224,30 @@ class LaserTracker(LeafSystem):
         self._plant_state_input = self.DeclareVectorInputPort(
             "plant_state", plant.num_multibody_states())
 
-        # One state vector per sample, [t_k, p_WT (3), q_link (n), q_motor (n)]: whatever
-        # reads or logs it gets the instant the sample was taken with the sample itself.
+        # One state vector per sample, [t_k, p_WT (3), q_link (n), q_motor (n), v (2n)]:
+        # whatever reads or logs it gets the instant the sample was taken with the sample.
         n = len(names)
-        self._slices = {"sample_time": slice(0, 1), "position_measured": slice(1, 4),
-                        "q_link": slice(4, 4 + n), "q_motor": slice(4 + n, 4 + 2 * n)}
-        default_sample = self._sample(
-            plant.GetPositionsAndVelocities(self._plant_context), 0.0)
-        self._measurement_state = self.DeclareDiscreteState(default_sample)
-        # The joint velocities of the same sample, [v_link (n), v_motor (n)].
-        self._velocity_state = self.DeclareDiscreteState(np.zeros(2 * n))
+        default = plant.GetPositionsAndVelocities(self._plant_context)
+        initial = TrackerSample(
+            measurement=tracker_measurement(self._params, default, 0.0,
+                                            self._tool_position(default)),
+            velocity=np.zeros(2 * n))
+        self._state = CodecState(self, initial)
         self.DeclareInitializationDiscreteUpdateEvent(self._update_sample)
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update_sample)
 
-        self._measurement_output = self.DeclareStateOutputPort(
-            "measurement", self._measurement_state)
-        ports = {name: self.DeclareVectorOutputPort(
-                     name, part.stop - part.start, self._slice_of_state(part),
-                     prerequisites_of_calc={self.xd_ticket()})
-                 for name, part in self._slices.items() if name != "sample_time"}
+        self._measurement_output = self._state.output("measurement", "measurement")
+        measurement = self._state.codec.field_slice("measurement")
+        parts = {"position_measured": slice(1, 4), "q_link": slice(4, 4 + n),
+                 "q_motor": slice(4 + n, 4 + 2 * n), "sample_time": slice(0, 1)}
+        ports = {name: self._state.output(name, slice(measurement.start + part.start,
+                                                      measurement.start + part.stop))
+                 for name, part in parts.items()}
         self._position_output = ports["position_measured"]
         self._q_link_output = ports["q_link"]
         self._q_motor_output = ports["q_motor"]
-        self._sample_time_output = self.DeclareVectorOutputPort(
-            "sample_time", 1, self._slice_of_state(self._slices["sample_time"]),
-            prerequisites_of_calc={self.xd_ticket()})
-        self._velocity_output = self.DeclareStateOutputPort(
-            "velocity_measured", self._velocity_state)
+        self._sample_time_output = ports["sample_time"]
+        self._velocity_output = self._state.output("velocity_measured", "velocity")
 
     # -- accessors ------------------------------------------------------------------------
 
@@ -292,22 +301,23 @@ class LaserTracker(LeafSystem):
         """
         times = np.asarray(times_s, dtype=float).reshape(-1)
         states = np.asarray(plant_states, dtype=float)
+        params = self._params
         width = self._plant_state_input.size()
         if states.ndim != 2 or states.shape != (times.size, width):
             raise ValueError(f"plant_states has shape {states.shape}; expected "
                              f"({times.size}, {width})")
         if np.any(np.diff(times) <= 0.0):
             raise ValueError("times_s must be strictly increasing")
-        positions = states[:, : self._num_positions]
-        q_motor = positions[:, self._motor_index]
+        positions = states[:, : params.num_positions]
+        q_motor = positions[:, params.motor_index]
         if self._tool_chain is not None:
             tool = self._tool_chain.positions(positions)
         else:
             tool = np.array([self._tool_position(row) for row in positions]).reshape(-1, 3)
-        if self._config.noise_m > 0.0:
-            tool += np.array([self._noise(float(t)) for t in times]).reshape(-1, 3)
+        if params.noise_m > 0.0:
+            tool += np.array([tracker_noise(params, float(t)) for t in times]).reshape(-1, 3)
         return TrackerRecord(t_s=times.copy(), tool_position_m=tool,
-                             q_link=q_motor + positions[:, self._deflection_index],
+                             q_link=q_motor + positions[:, params.deflection_index],
                              q_motor=q_motor)
 
     def Sample(self, context) -> None:
@@ -319,43 +329,15 @@ class LaserTracker(LeafSystem):
 
     # -- callbacks ------------------------------------------------------------------------
 
-    def _slice_of_state(self, part: slice):
-        def calc(context, output):
-            output.SetFromVector(
-                context.get_discrete_state(self._measurement_state).get_value()[part])
-        return calc
-
-    def _sample(self, plant_state, time_s) -> np.ndarray:
-        """[t_k, p_WT (3), q_link (n), q_motor (n)] of a plant state sampled at ``time_s``."""
-        n = self._motor_index.size
-        positions = np.asarray(plant_state)[: self._num_positions]
-        sample = np.empty(4 + 2 * n)
-        sample[0] = time_s
-        q_motor = sample[4 + n:]
-        q_motor[:] = positions[self._motor_index]
-        np.add(q_motor, positions[self._deflection_index], out=sample[4:4 + n])   # q_link
-        sample[1:4] = self._tool_position(positions)
-        if self._config.noise_m > 0.0:
-            sample[1:4] += self._noise(time_s)
-        return sample
-
-    def _tool_position(self, positions) -> np.ndarray:
+    def _tool_position(self, plant_state) -> np.ndarray:
         """p_WT of the plant's positions, m, (3,). The tool point depends on the positions
         only (the scratch context's velocities are never read)."""
-        self._plant.SetPositions(self._plant_context, positions)
+        self._plant.SetPositions(self._plant_context,
+                                 np.asarray(plant_state)[: self._params.num_positions])
         return self._plant.CalcPointsPositions(
             self._plant_context, self._tool_frame, self._tool_origin, self._world_frame)[:, 0]
 
-    def _noise(self, time_s: float) -> np.ndarray:
-        """Sample k's noise, k = round(t_k/period): σ·N(0, I₃) from ``default_rng([seed, k])``."""
-        k = int(round(time_s / self._config.period_s))
-        rng = np.random.default_rng([self._config.seed, k])
-        return self._config.noise_m * rng.standard_normal(3)
-
     def _update_sample(self, context, discrete_state) -> None:
         state = self._plant_state_input.Eval(context)
-        discrete_state.get_mutable_vector(self._measurement_state).SetFromVector(self._sample(
-            state, context.get_time()))
-        v_motor = state[self._motor_velocity_index]
-        discrete_state.get_mutable_vector(self._velocity_state).SetFromVector(
-            np.concatenate([v_motor + state[self._deflection_velocity_index], v_motor]))
+        self._state.store(discrete_state, tracker_step(
+            self._params, state, context.get_time(), self._tool_position(state)))

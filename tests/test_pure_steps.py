@@ -24,6 +24,7 @@ PURE_STEPS = {
     "haptic_command_receiver.HapticCommandReceiver": ("telesmooth.link.haptic", "haptic_step"),
     "joint_command_receiver.JointCommandReceiver": ("telesmooth.link.receiver",
                                                     "receiver_step"),
+    "laser_tracker.LaserTracker": ("telesmooth.arms.tracker", "tracker_step"),
     "link_channel.LinkChannel": ("telesmooth.link.channel", "channel_step"),
     "link_guard.LinkGuard": ("telesmooth.safety.guard", "guard_step"),
     "link_monitor.LinkMonitor": ("telesmooth.link.monitor", "monitor_step"),
@@ -37,7 +38,6 @@ PURE_STEPS = {
 
 NOT_YET = {
     "inverse_kinematics.InverseKinematicsSystem": "the IK's holds and the clutch's anchor",
-    "laser_tracker.LaserTracker": "the tracker's seeded noise and sample instants",
     "lcm_safe_subscriber.LcmSafeSubscriber": "the packet window and its counts",
     "robot_predictor.RobotPredictor": "the copies of the onboard chain it simulates",
 }
