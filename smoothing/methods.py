@@ -36,6 +36,7 @@ or the paper's "loose" one); the Kalman filters keep the paper's prior diag(r, 1
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -222,104 +223,158 @@ def smooth_recording(
                          if lag <= MAX_LAG else f"lag = {lag} must be at most {MAX_LAG} samples")
     model = JerkModel.make(dt_s, settings.sigma, settings.r, num_joints=num_joints,
                            joint_names=joint_names)
-    if method == "original":
-        return SmoothedRecording(name, z.copy(), None, 0.0)
-    if method in ("kf", "kf-predictor"):
-        result = kalman_filter(z, model, rest_prior(z[0], model))
-        states = result.filtered_mean if method == "kf" else result.predicted_mean
-        return SmoothedRecording(name, states[:, :, 0].copy(), states, 0.0)
-    if method == "offline-ks":
-        states = rts_smoother(z, model, start_prior(settings.start_prior, z[0], model)).mean
-        return SmoothedRecording(name, states[:, :, 0].copy(), states, 0.0,
-                                 details={"start_prior": settings.start_prior})
-    if method == "offline-cks":
-        result = solve_offline_cks(
-            z, model,
-            max_acceleration=settings.max_acceleration,
-            max_jerk=settings.max_jerk,
-            max_velocity=settings.max_velocity,
-            constraint=settings.constraint,
-            rest_at_end=settings.rest_at_end,
-            prior=start_prior(settings.start_prior, z[0], model),
-            joint_names=joint_names,
-            tolerance=settings.offline_tolerance,
-            solver=settings.offline_solver,
+    return _RUNS[method](_Run(method, name, z, dt_s, model, lag, settings, joint_names, sigma0))
+
+
+class _Run(NamedTuple):
+    """What every method's run takes (checked by :func:`smooth_recording`)."""
+
+    method: str                # the computation (:func:`method_variant`'s)
+    name: str                  # the name the result carries (the caller's, resolved)
+    z: np.ndarray              # (N, J) the samples
+    dt_s: float
+    model: JerkModel
+    lag: int                   # L, samples (the fixed-lag methods)
+    settings: SmoothingSettings
+    joint_names: object
+    sigma0: object             # Online-CKS's σ_0 (scalar or per joint), or None (the model's)
+
+
+def _run_original(run: _Run) -> SmoothedRecording:
+    return SmoothedRecording(run.name, run.z.copy(), None, 0.0)
+
+
+def _run_kalman_filter(run: _Run) -> SmoothedRecording:
+    z, model = run.z, run.model
+    result = kalman_filter(z, model, rest_prior(z[0], model))
+    states = result.filtered_mean if run.method == "kf" else result.predicted_mean
+    return SmoothedRecording(run.name, states[:, :, 0].copy(), states, 0.0)
+
+
+def _run_offline_ks(run: _Run) -> SmoothedRecording:
+    z, model, settings = run.z, run.model, run.settings
+    states = rts_smoother(z, model, start_prior(settings.start_prior, z[0], model)).mean
+    return SmoothedRecording(run.name, states[:, :, 0].copy(), states, 0.0,
+                             details={"start_prior": settings.start_prior})
+
+
+def _run_offline_cks(run: _Run) -> SmoothedRecording:
+    z, model, settings, joint_names = run.z, run.model, run.settings, run.joint_names
+    result = solve_offline_cks(
+        z, model,
+        max_acceleration=settings.max_acceleration,
+        max_jerk=settings.max_jerk,
+        max_velocity=settings.max_velocity,
+        constraint=settings.constraint,
+        rest_at_end=settings.rest_at_end,
+        prior=start_prior(settings.start_prior, z[0], model),
+        joint_names=joint_names,
+        tolerance=settings.offline_tolerance,
+        solver=settings.offline_solver,
+    )
+    details = {
+        "constraint": settings.constraint,
+        "start_prior": settings.start_prior,
+        "solver": result.solver_name,
+        "solution_results": list(result.solution_results),
+        "solve_time_s": result.solve_time_s.tolist(),
+        "build_time_s": result.build_time_s.tolist(),
+    }
+    if not result.is_success:
+        raise RuntimeError(
+            "Offline-CKS failed: "
+            f"{dict(zip(joint_names or range(z.shape[1]), result.solution_results))}; "
+            f"violated constraints: {result.infeasible_constraints}"
         )
-        details = {
-            "constraint": settings.constraint,
-            "start_prior": settings.start_prior,
-            "solver": result.solver_name,
-            "solution_results": list(result.solution_results),
-            "solve_time_s": result.solve_time_s.tolist(),
-            "build_time_s": result.build_time_s.tolist(),
-        }
-        if not result.is_success:
-            raise RuntimeError(
-                "Offline-CKS failed: "
-                f"{dict(zip(joint_names or range(num_joints), result.solution_results))}; "
-                f"violated constraints: {result.infeasible_constraints}"
-            )
-        return SmoothedRecording(name, result.states[:, :, 0].copy(), result.states, 0.0,
-                                 details=details)
-    if method == "offline-hard":
-        # The least deformation the limits allow: the samples moved only where the FD limits
-        # force it, from rest at z_0 to rest at the end (smoothing.offline_hard).
-        hard = solve_offline_hard(
-            z, dt_s, max_acceleration=settings.max_acceleration, max_jerk=settings.max_jerk,
-            max_velocity=settings.max_velocity, start_position=z[0], rest_at_end=True,
-            joint_names=joint_names)
-        if not hard.is_success:
-            raise RuntimeError(
-                f"offline-hard failed: {dict(zip(joint_names or range(num_joints), hard.status))}")
-        states = finite_difference_states(hard.positions, z[0], dt_s)
-        return SmoothedRecording(name, hard.positions.copy(), states, 0.0,
-                                 details={"status": list(hard.status),
-                                          "iterations": hard.iterations.tolist()})
-    if method == "ruckig":
-        states = ruckig_stream(z, dt_s, max_acceleration=settings.max_acceleration,
-                               max_jerk=settings.max_jerk, max_velocity=settings.max_velocity,
-                               target=settings.ruckig_target,
-                               synchronization=settings.ruckig_synchronization,
-                               joint_names=joint_names)
-        return SmoothedRecording(name, states[:, :, 0].copy(), states, 0.0,
-                                 details={"target": settings.ruckig_target,
-                                          "synchronization": settings.ruckig_synchronization})
-    # Fixed-lag methods: the operator holds the last pose for L more samples.
-    padded = np.vstack([z, np.repeat(z[-1:], lag, axis=0)])
-    if method == "bmfls":
-        outputs = FixedLagSmoother(model, lag=lag, method=settings.fixed_lag_method).run(padded)
-        states = outputs[lag:]
-        return SmoothedRecording(name, states[:, :, 0].copy(), states, lag * dt_s,
-                                 details={"lag": lag})
+    return SmoothedRecording(run.name, result.states[:, :, 0].copy(), result.states, 0.0,
+                             details=details)
+
+
+def _run_offline_hard(run: _Run) -> SmoothedRecording:
+    # The least deformation the limits allow: the samples moved only where the FD limits
+    # force it, from rest at z_0 to rest at the end (smoothing.offline_hard).
+    z, dt_s, settings, joint_names = run.z, run.dt_s, run.settings, run.joint_names
+    hard = solve_offline_hard(
+        z, dt_s, max_acceleration=settings.max_acceleration, max_jerk=settings.max_jerk,
+        max_velocity=settings.max_velocity, start_position=z[0], rest_at_end=True,
+        joint_names=joint_names)
+    if not hard.is_success:
+        raise RuntimeError(
+            f"offline-hard failed: {dict(zip(joint_names or range(z.shape[1]), hard.status))}")
+    states = finite_difference_states(hard.positions, z[0], dt_s)
+    return SmoothedRecording(run.name, hard.positions.copy(), states, 0.0,
+                             details={"status": list(hard.status),
+                                      "iterations": hard.iterations.tolist()})
+
+
+def _run_ruckig(run: _Run) -> SmoothedRecording:
+    settings = run.settings
+    states = ruckig_stream(run.z, run.dt_s, max_acceleration=settings.max_acceleration,
+                           max_jerk=settings.max_jerk, max_velocity=settings.max_velocity,
+                           target=settings.ruckig_target,
+                           synchronization=settings.ruckig_synchronization,
+                           joint_names=run.joint_names)
+    return SmoothedRecording(run.name, states[:, :, 0].copy(), states, 0.0,
+                             details={"target": settings.ruckig_target,
+                                      "synchronization": settings.ruckig_synchronization})
+
+
+def _held(run: _Run) -> np.ndarray:
+    """The samples and L copies of the last: the operator holds the last pose (the fixed-lag
+    methods)."""
+    return np.vstack([run.z, np.repeat(run.z[-1:], run.lag, axis=0)])
+
+
+def _run_bmfls(run: _Run) -> SmoothedRecording:
+    lag = run.lag
+    outputs = FixedLagSmoother(run.model, lag=lag,
+                               method=run.settings.fixed_lag_method).run(_held(run))
+    states = outputs[lag:]
+    return SmoothedRecording(run.name, states[:, :, 0].copy(), states, lag * run.dt_s,
+                             details={"lag": lag})
+
+
+def _run_online_cks(run: _Run) -> SmoothedRecording:
+    z, dt_s, lag, settings = run.z, run.dt_s, run.lag, run.settings
     online = OnlineCks(
-        model,
+        run.model,
         max_acceleration=settings.max_acceleration,
         max_jerk=settings.max_jerk,
         lag=lag,
         config=settings.reduced_q,
         method=settings.fixed_lag_method,
-        joint_names=joint_names,
+        joint_names=run.joint_names,
     )
+    sigma0 = run.sigma0
     if sigma0 is not None:
-        sigma0 = as_per_joint("sigma0", sigma0, num_joints, joint_names)
-    run = online.run(padded, sigma0=sigma0)
-    states = run.outputs[lag:]
+        sigma0 = as_per_joint("sigma0", sigma0, run.z.shape[1], run.joint_names)
+    result = online.run(_held(run), sigma0=sigma0)
+    states = result.outputs[lag:]
     details = {"lag": lag, "variant": settings.reduced_q.variant,
                "step_rule": settings.reduced_q.step_rule,
-               "cycles_triggered": run.triggered.sum(axis=0).tolist()}
-    if method == "online-hard":
+               "cycles_triggered": result.triggered.sum(axis=0).tolist()}
+    if run.method == "online-hard":
         # The estimate each tick leaves the ground station through the hard limiter: the sent
         # sequence (after the robot's rest at z_0) meets every FD limit exactly.
         positions = online_hard_run(
             states[:, :, 0], dt_s, max_acceleration=settings.max_acceleration,
             max_jerk=settings.max_jerk, max_velocity=settings.max_velocity, q_start=z[0],
-            joint_names=joint_names)
+            joint_names=run.joint_names)
         states = finite_difference_states(positions, z[0], dt_s)
-        details["limited_max_abs_rad"] = np.abs(positions - run.outputs[lag:, :, 0]).max(
+        details["limited_max_abs_rad"] = np.abs(positions - result.outputs[lag:, :, 0]).max(
             axis=0).tolist()
     return SmoothedRecording(
-        name, states[:, :, 0].copy(), states, lag * dt_s,
-        sigma=run.sigma[lag:], final_sigma=run.final_state.sigma.copy(), details=details)
+        run.name, states[:, :, 0].copy(), states, lag * dt_s,
+        sigma=result.sigma[lag:], final_sigma=result.final_state.sigma.copy(), details=details)
+
+
+_RUNS = {"original": _run_original, "kf": _run_kalman_filter,
+         "kf-predictor": _run_kalman_filter, "offline-ks": _run_offline_ks,
+         "offline-cks": _run_offline_cks, "offline-hard": _run_offline_hard,
+         "ruckig": _run_ruckig, "bmfls": _run_bmfls, "online-cks": _run_online_cks,
+         "online-hard": _run_online_cks}
+"""Each computation :func:`method_variant` names (``offline-cks-trajectory`` is
+``offline-cks`` with other settings) and the function that runs it."""
 
 
 def finite_difference_states(positions, rest, dt_s: float) -> np.ndarray:

@@ -43,6 +43,19 @@ def test_the_method_groups_are_methods_of_the_registry():
     assert METHOD_CHOICES == METHODS + tuple(METHOD_ALIASES)
 
 
+def test_every_method_runs_through_the_dispatch_table_and_nothing_else_is_in_it():
+    from telesmooth.smoothing.methods import _RUNS
+
+    computations = {method_variant(name, SmoothingSettings())[0] for name in METHODS}
+    assert set(_RUNS) == computations
+    z = np.linspace([0.0, 0.1], [0.2, -0.1], 12)
+    for name in METHODS + tuple(METHOD_ALIASES):
+        result = smooth_recording(z, 0.25, name, SmoothingSettings(max_acceleration=0.5,
+                                                                  max_jerk=1.0))
+        assert result.method == method_name(name)
+        assert result.positions.shape == z.shape
+
+
 @pytest.mark.parametrize("alias, method", sorted(METHOD_ALIASES.items()))
 def test_an_alias_is_its_method(alias, method):
     assert method_name(alias) == method
