@@ -19,7 +19,7 @@ rigid Drake plant, :mod:`telesmooth.arms.space_arm_ik`).
 from __future__ import annotations
 
 import dataclasses
-import enum
+import functools
 import math
 
 import numpy as np
@@ -28,20 +28,24 @@ from pydrake.math import RollPitchYaw, RotationMatrix
 from pydrake.systems.framework import LeafSystem
 
 from telesmooth.arms.description import ArmDescription
+from telesmooth.arms.ik_step import (
+    IkInputs,
+    IkParams,
+    IkState,
+    IkStatus,
+    ik_failed,
+    ik_initial_state,
+    ik_step,
+)
 from telesmooth.arms.joint_vectors import check_joint_vector
 from telesmooth.arms.planar import (
     PlanarArm,
-    planar_3r_inverse_kinematics_point,
     planar_end_effector_angle,
     planar_forward_kinematics,
-    planar_pose_point,
 )
-from telesmooth.arms.space_arm_ik import (
-    SpaceArmIkStatus,
-    SpaceArmKinematics,
-    solve_space_arm_ik,
-)
+from telesmooth.arms.space_arm_ik import SpaceArmKinematics, solve_space_arm_ik
 from telesmooth.datasets.haptic_recording import PLANAR_POSE_NAMES, SPATIAL_POSE_NAMES
+from telesmooth.systems.codec_state import CodecState
 from telesmooth.systems.timing import check_period
 
 __all__ = [
@@ -103,31 +107,6 @@ class InverseKinematicsConfig:
                 f"InverseKinematicsConfig.max_iterations = {self.max_iterations!r} must be an "
                 "integer >= 1"
             )
-
-
-class IkStatus(enum.IntEnum):
-    """Outcome of the last update of :class:`InverseKinematicsSystem` (``ik_status`` port)."""
-
-    OK = 0
-    """The command was converted; ``q_target`` is its joint target."""
-    DISENGAGED = 1
-    """The clutch is released: the target holds (not a failure)."""
-    INVALID_INPUT = 2
-    """A non-finite (or missing) pose command or clutch value: held, failed."""
-    UNREACHABLE = 3
-    """The commanded pose is outside the workspace (or, 6-DOF, at a singularity): held."""
-    JOINT_LIMIT = 4
-    """Reaching the commanded pose would violate a joint limit: held."""
-    JOINT_STEP = 5
-    """The target would jump by more than ``max_joint_step_rad`` in some joint: held."""
-    SOLVER_ERROR = 6
-    """The numerical solver raised: held."""
-
-
-_SOLVE_OUTCOMES = frozenset(float(status) for status in (
-    IkStatus.OK, IkStatus.UNREACHABLE, IkStatus.JOINT_LIMIT, IkStatus.JOINT_STEP,
-    IkStatus.SOLVER_ERROR))
-"""The statuses an IK solve of ``pose_commanded`` can end with (not DISENGAGED/INVALID)."""
 
 
 def planar_arm_from_description(arm: ArmDescription) -> PlanarArm:
@@ -251,9 +230,12 @@ class InverseKinematicsSystem(LeafSystem):
     - ``pose_commanded``: the command after the clutch offset, (m,), same units as
       ``pose_desired``; the last finite command attempted, even if it was rejected.
 
-    State (discrete, one group each): q_target (n); clutch offset (planar: dx, dy, dphi;
-    6-DOF: dx, dy, dz and R_off as a unit quaternion qw, qx, qy, qz); previous enable e (1);
-    ik_status (1; ik_failed is derived from it); pose_commanded (m).
+    State (:class:`~telesmooth.arms.ik_step.IkState`, one discrete vector): q_target (n);
+    clutch offset (planar: dx, dy, dphi; 6-DOF: dx, dy, dz and R_off as a unit quaternion qw,
+    qx, qy, qz); previous enable e (1); ik_status (1; ik_failed is derived from it);
+    pose_commanded (m). Updated by :func:`~telesmooth.arms.ik_step.ik_step`, which holds the
+    rule below; the system evaluates the inputs and gives the step the kinematics as callables
+    (forward kinematics and the 6-DOF solve run the rigid Drake plant).
 
     Update at t_k = k·period_s (offset 0), with u = pose_desired(t_k), e_k = enable(t_k):
 
@@ -346,21 +328,32 @@ class InverseKinematicsSystem(LeafSystem):
         self._q_anchor_input = self.DeclareVectorInputPort("q_anchor", n)
         self._anchor_input = self.DeclareVectorInputPort("anchor", 1)
 
-        self._q_state = self.DeclareDiscreteState(q0)
-        self._offset_state = self.DeclareDiscreteState(offset0)
-        self._previous_enable_state = self.DeclareDiscreteState(np.ones(1))
-        self._status_state = self.DeclareDiscreteState(np.array([float(IkStatus.OK)]))
-        self._pose_commanded_state = self.DeclareDiscreteState(self.forward_kinematics_pose(q0))
+        self._params = IkParams(
+            lower_rad=self._lower, upper_rad=self._upper,
+            max_joint_step_rad=config.max_joint_step_rad,
+            position_tolerance_m=config.position_tolerance_m,
+            orientation_tolerance_rad=config.orientation_tolerance_rad,
+            forward_kinematics=self.forward_kinematics_pose,
+            clutch_offset=functools.partial(clutch_offset, planar=self._planar),
+            apply_clutch_offset=functools.partial(apply_clutch_offset, planar=self._planar),
+            planar_arm=self._planar_arm, elbow=config.elbow,
+            space_solve=None if self._planar else functools.partial(
+                solve_space_arm_ik, self._kinematics,
+                position_tolerance_m=config.position_tolerance_m,
+                orientation_tolerance_rad=config.orientation_tolerance_rad,
+                max_joint_step_rad=config.max_joint_step_rad,
+                max_iterations=config.max_iterations))
+        self._state = CodecState(self, ik_initial_state(q0, offset0,
+                                                        self.forward_kinematics_pose(q0)))
+        self._status_index = self._state.codec.field_slice("status").start
         self.DeclarePeriodicDiscreteUpdateEvent(config.period_s, 0.0, self._update)
 
-        flags_ticket = {self.discrete_state_ticket(self._status_state)}
-        self._q_target_output = self.DeclareStateOutputPort("q_target", self._q_state)
+        self._q_target_output = self._state.output("q_target", "q")
         self._ik_failed_output = self.DeclareVectorOutputPort(
-            "ik_failed", 1, self._calc_ik_failed, prerequisites_of_calc=flags_ticket)
+            "ik_failed", 1, self._calc_ik_failed, prerequisites_of_calc={self.xd_ticket()})
         self._ik_status_output = self.DeclareVectorOutputPort(
-            "ik_status", 1, self._calc_ik_status, prerequisites_of_calc=flags_ticket)
-        self._pose_commanded_output = self.DeclareStateOutputPort(
-            "pose_commanded", self._pose_commanded_state)
+            "ik_status", 1, self._calc_ik_status, prerequisites_of_calc={self.xd_ticket()})
+        self._pose_commanded_output = self._state.output("pose_commanded", "pose_commanded")
 
     # -- accessors ------------------------------------------------------------------------
 
@@ -420,129 +413,29 @@ class InverseKinematicsSystem(LeafSystem):
 
     # -- the update -----------------------------------------------------------------------
 
-    def _solve(self, pose_commanded: np.ndarray, q_previous: np.ndarray):
-        """(q, status): the IK answer for ``pose_commanded`` seeded with ``q_previous``."""
-        config = self._config
-        if self._planar:
-            # One pose in plain floats (the scalar twin of planar_3r_inverse_kinematics:
-            # numpy's overhead on three numbers cost ~170 µs per call).
-            x, y, phi = (float(v) for v in pose_commanded)
-            angles, reachable = planar_3r_inverse_kinematics_point(
-                x, y, phi, self._planar_arm, elbow=config.elbow)
-            q = np.array(angles)
-            within_limits = all(self._lower[i] <= angles[i] <= self._upper[i]
-                                for i in range(3))
-            if not reachable:
-                return q, IkStatus.UNREACHABLE if within_limits else IkStatus.JOINT_LIMIT
-            # Belt and braces: the closed form is exact, so this residual is ~1e-16.
-            x_q, y_q, phi_q = planar_pose_point(angles, self._planar_arm.link_lengths_m)
-            position_m = math.hypot(x_q - x, y_q - y)
-            orientation_rad = abs(math.remainder(phi_q - phi, 2.0 * math.pi))
-        else:
-            try:
-                result = solve_space_arm_ik(
-                    self._kinematics, pose_commanded, q_previous,
-                    position_tolerance_m=config.position_tolerance_m,
-                    orientation_tolerance_rad=config.orientation_tolerance_rad,
-                    max_joint_step_rad=config.max_joint_step_rad,
-                    max_iterations=config.max_iterations,
-                )
-            except RuntimeError:
-                return q_previous, IkStatus.SOLVER_ERROR
-            if not result.success:
-                status = {
-                    SpaceArmIkStatus.JOINT_LIMIT: IkStatus.JOINT_LIMIT,
-                    SpaceArmIkStatus.JOINT_STEP: IkStatus.JOINT_STEP,
-                }.get(result.error.status, IkStatus.UNREACHABLE)
-                return result.q_rad, status
-            q = result.q_rad
-            within_limits = bool(np.all((q >= self._lower) & (q <= self._upper)))
-            # The solver already measured the pose error of this q against this target.
-            position_m, orientation_rad = result.error.position_m, result.error.orientation_rad
-        if not within_limits:
-            return q, IkStatus.JOINT_LIMIT
-        if not (position_m <= config.position_tolerance_m
-                and orientation_rad <= config.orientation_tolerance_rad):
-            return q, IkStatus.UNREACHABLE
-        step = config.max_joint_step_rad
-        if not all(abs(float(a) - float(b)) <= step for a, b in zip(q, q_previous)):
-            return q, IkStatus.JOINT_STEP      # (a NaN fails the comparison too)
-        return q, IkStatus.OK
+    def ik_state(self, context) -> IkState:
+        """The stage, as :func:`~telesmooth.arms.ik_step.ik_step` left it."""
+        return self._state.get(context)
 
     def _update(self, context, discrete_state) -> None:
-        # Drake hands this update the current state: only the groups that change are
-        # written (every Drake call costs a few µs at 100 Hz; see the issue-20 bench).
-        q = context.get_discrete_state(self._q_state).get_value()
-        previous_enable = context.get_discrete_state(self._previous_enable_state).get_value()[0]
-        enable = self._enable_input.Eval(context)[0] if self._enable_input.HasValue(context) \
-            else 1.0
+        before = self._state.get(context)
         pose = (self._pose_desired_input.Eval(context)
                 if self._pose_desired_input.HasValue(context) else None)
-        engaged_next = previous_enable
-        q_new = pose_commanded = offset = None
-        if not math.isfinite(enable):
-            status, engaged_next = IkStatus.INVALID_INPUT, 0.0
-        elif enable <= 0.5:
-            status, engaged_next = IkStatus.DISENGAGED, 0.0
-        elif pose is None or not all(map(math.isfinite, pose)):
-            status = IkStatus.INVALID_INPUT
-        else:
-            offset = context.get_discrete_state(self._offset_state).get_value()
-            if previous_enable <= 0.5:
-                anchor = self._anchor(context)
-                if anchor is not None:
-                    # Re-anchored at the robot's commanded pose: the target continues from
-                    # there (it held elsewhere while the FIFO held the robot).
-                    q = anchor
-                    q_new = anchor
-                # Re-index: the command continues from the held target's pose.
-                offset = clutch_offset(
-                    self.forward_kinematics_pose(q), pose, planar=self._planar)
-            command = apply_clutch_offset(pose, offset, planar=self._planar)
-            last_status = context.get_discrete_state(self._status_state).get_value()[0]
-            if (previous_enable > 0.5 and last_status in _SOLVE_OUTCOMES
-                    and np.array_equal(command, context.get_discrete_state(
-                        self._pose_commanded_state).get_value())):
-                # The command the last update solved, from the target it held or set: the
-                # answer would be the same, so it is not computed again (an operator who
-                # holds still costs nothing).
-                status = IkStatus(int(last_status))
-            elif all(map(math.isfinite, command)):
-                pose_commanded = command
-                solution, status = self._solve(command, q)
-                if status == IkStatus.OK and all(map(math.isfinite, solution)):
-                    q_new = solution
-            else:  # cannot happen for finite inputs; hold rather than trust it
-                status = IkStatus.INVALID_INPUT
-            engaged_next = 1.0
-
-        if q_new is not None:
-            discrete_state.get_mutable_vector(self._q_state).SetFromVector(q_new)
-        if offset is not None and previous_enable <= 0.5:
-            discrete_state.get_mutable_vector(self._offset_state).SetFromVector(offset)
-        if engaged_next != previous_enable:
-            discrete_state.get_mutable_vector(self._previous_enable_state).SetAtIndex(
-                0, engaged_next)
-        discrete_state.get_mutable_vector(self._status_state).SetAtIndex(0, float(status))
-        if pose_commanded is not None:
-            discrete_state.get_mutable_vector(self._pose_commanded_state).SetFromVector(
-                pose_commanded)
-
-    def _anchor(self, context):
-        """The anchor to re-engage at, (J,) rad: ``q_anchor`` while ``anchor`` is set, if both
-        are connected and ``q_anchor`` is finite and within the joint limits; else None."""
-        if not (self._anchor_input.HasValue(context) and self._q_anchor_input.HasValue(context)):
-            return None
-        if not self._anchor_input.Eval(context)[0] > 0.5:
-            return None
-        q = np.array(self._q_anchor_input.Eval(context), dtype=float)
-        if not (np.all(np.isfinite(q)) and np.all(q >= self._lower) and np.all(q <= self._upper)):
-            return None
-        return q
+        enable = self._enable_input.Eval(context)[0] if self._enable_input.HasValue(context) \
+            else 1.0
+        anchor = q_anchor = None
+        if not before.engaged:   # the anchor matters only when the clutch re-engages
+            if self._anchor_input.HasValue(context):
+                anchor = self._anchor_input.Eval(context)[0]
+            if self._q_anchor_input.HasValue(context):
+                q_anchor = self._q_anchor_input.Eval(context)
+        state = ik_step(self._params, before, IkInputs(pose, enable, anchor, q_anchor))
+        if state is not before:     # most updates of a still hand or a released clutch
+            self._state.store(discrete_state, state)
 
     def _calc_ik_failed(self, context, output) -> None:
-        status = IkStatus(int(context.get_discrete_state(self._status_state).get_value()[0]))
-        output.SetAtIndex(0, float(status not in (IkStatus.OK, IkStatus.DISENGAGED)))
+        status = IkStatus(int(self._state.vector(context)[self._status_index]))
+        output.SetAtIndex(0, float(ik_failed(status)))
 
     def _calc_ik_status(self, context, output) -> None:
-        output.SetAtIndex(0, context.get_discrete_state(self._status_state).get_value()[0])
+        output.SetAtIndex(0, self._state.vector(context)[self._status_index])

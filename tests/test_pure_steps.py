@@ -22,6 +22,7 @@ PURE_STEPS = {
     "command_interpolator.CommandGate": ("telesmooth.safety.command_gate", "gate_step"),
     "delay_fifo.DelayFifo": ("telesmooth.safety.fifo", "fifo_step"),
     "haptic_command_receiver.HapticCommandReceiver": ("telesmooth.link.haptic", "haptic_step"),
+    "inverse_kinematics.InverseKinematicsSystem": ("telesmooth.arms.ik_step", "ik_step"),
     "joint_command_receiver.JointCommandReceiver": ("telesmooth.link.receiver",
                                                     "receiver_step"),
     "laser_tracker.LaserTracker": ("telesmooth.arms.tracker", "tracker_step"),
@@ -37,7 +38,6 @@ PURE_STEPS = {
 """System → (module, function) of its pure step."""
 
 NOT_YET = {
-    "inverse_kinematics.InverseKinematicsSystem": "the IK's holds and the clutch's anchor",
     "lcm_safe_subscriber.LcmSafeSubscriber": "the packet window and its counts",
     "robot_predictor.RobotPredictor": "the copies of the onboard chain it simulates",
 }
