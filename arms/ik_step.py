@@ -43,7 +43,8 @@ __all__ = ["IkInputs", "IkParams", "IkState", "IkStatus", "SOLVE_OUTCOMES", "ik_
 
 
 class IkStatus(enum.IntEnum):
-    """Outcome of the last update of :class:`InverseKinematicsSystem` (``ik_status`` port)."""
+    """Outcome of the last update (the ``ik_status`` port of
+    :class:`~telesmooth.systems.inverse_kinematics.InverseKinematicsSystem`)."""
 
     OK = 0
     """The command was converted; ``q_target`` is its joint target."""
