@@ -144,6 +144,7 @@ from telesmooth.arms.joint_vectors import (
     check_positive_scalar,
 )
 from telesmooth.compiled import readonly_copy
+from telesmooth.safety.finite_differences import fd_acceleration, fd_state, fd_velocity
 
 __all__ = [
     "DEFAULT_MARGIN",
@@ -630,8 +631,7 @@ def limiter_moving_state(params: LimiterParams, history, target) -> LimiterState
         r = np.vstack([r, r])
     if r.shape != (2, n):
         raise ValueError(f"target has shape {r.shape}; expected ({n},) or (2, {n})")
-    velocity = (h[2] - h[1]) / dt
-    acceleration = (h[2] - 2.0 * h[1] + h[0]) / dt**2
+    velocity, acceleration = fd_state(h, dt)
     return LimiterState(position=h[2].copy(), velocity=velocity, acceleration=acceleration,
                         sent=np.vstack([h[0], h[0], h[1], h[2]]), targets=r,
                         held=np.zeros(n, dtype=bool), ticks=0, outcome=LimiterOutcome.EXACT)
@@ -763,8 +763,8 @@ def _step_arrays(params: LimiterParams, state: LimiterState, r: np.ndarray,
         lower_band, upper_band = lo, hi
     else:
         r2, r1 = state.targets
-        target_vel = (r - r1) / dt
-        target_acc = (r - 2.0 * r1 + r2) / dt**2
+        target_vel = fd_velocity(r1, r, dt)
+        target_acc = fd_acceleration(r2, r1, r, dt)
         target_stop = stop_position(r, target_vel, target_acc, a_lim, j_lim)
         if held.any():
             target_stop = np.where(held, r, target_stop)
@@ -773,8 +773,8 @@ def _step_arrays(params: LimiterParams, state: LimiterState, r: np.ndarray,
         if future is not None:
             usable = np.all(np.isfinite(future), axis=0) & ~held
             seq = np.vstack([r2, r1, r, np.where(usable, future, r)])
-            end_vel = (seq[-1] - seq[-2]) / dt
-            end_acc = (seq[-1] - 2.0 * seq[-2] + seq[-3]) / dt**2
+            end_vel = fd_velocity(seq[-2], seq[-1], dt)
+            end_acc = fd_acceleration(seq[-3], seq[-2], seq[-1], dt)
             end_stop = stop_position(seq[-1], end_vel, end_acc, a_lim, j_lim)
             wall_hi = np.where(usable, np.maximum(wall_hi, np.maximum(
                 seq[2:].max(axis=0), end_stop)), wall_hi)

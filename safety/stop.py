@@ -49,6 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from telesmooth.labelled_enum import LabelledEnum
+from telesmooth.safety.finite_differences import fd_state
 from telesmooth.safety.limiter import (
     DEFAULT_MARGIN,
     HISTORY_LENGTH,
@@ -242,12 +243,6 @@ def stop_params(*, dt_s: float, max_acceleration, max_jerk, max_velocity=None,
     return StopParams(limiter=limits, pose_is_safe=pose_is_safe,
                       allow_reverse=bool(allow_reverse),
                       rounding_tolerance=float(rounding_tolerance))
-
-
-def fd_state(history, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """(v, a) of the history [p_{k−3}, p_{k−2}, p_{k−1}] (3, J): rad/s, rad/s²."""
-    h = np.asarray(history, dtype=float)
-    return (h[2] - h[1]) / dt_s, (h[2] - 2.0 * h[1] + h[0]) / dt_s**2
 
 
 def nudge_into_stoppable_set(history, stoppable_sets, dt_s: float, *,

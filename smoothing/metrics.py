@@ -17,12 +17,9 @@ from collections.abc import Callable
 
 import numpy as np
 
+from telesmooth.safety.finite_differences import finite_differences
+
 VIOLATION_RTOL = 1e-6
-
-
-def finite_differences(positions, dt_s: float, order: int) -> np.ndarray:
-    """Order-1/2/3 finite differences along axis 0, divided by Δt^order, shape (N−order, …)."""
-    return np.diff(np.asarray(positions, dtype=float), n=order, axis=0) / dt_s**order
 
 
 def limit_statistics(values, limit) -> dict:

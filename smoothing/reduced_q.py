@@ -32,6 +32,7 @@ from telesmooth.arms.joint_vectors import (
     check_trajectory,
 )
 from telesmooth.compiled import readonly_copy
+from telesmooth.safety.finite_differences import fd_acceleration, fd_jerk
 from telesmooth.smoothing.fixed_lag import FixedLagSmoother, FixedLagState, frozen_instance
 from telesmooth.smoothing.model import SCALED_TRANSITION, UNIT_PROCESS_COVARIANCE, JerkModel
 
@@ -211,8 +212,8 @@ class OnlineCks:
         else:
             dt = self.model.dt_s
             p = np.vstack([sent_positions, output[None, :, 0]])
-            acc = (p[3] - 2.0 * p[2] + p[1]) / dt**2
-            jerk = (p[3] - 3.0 * p[2] + 3.0 * p[1] - p[0]) / dt**3
+            acc = fd_acceleration(p[1], p[2], p[3], dt)
+            jerk = fd_jerk(p[0], p[1], p[2], p[3], dt)
         return (np.abs(acc) > self.max_acceleration) | (np.abs(jerk) > self.max_jerk)
 
     def _decrease(self, sigma, mask):

@@ -27,6 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from telesmooth.safety.finite_differences import fd_jerk
 from telesmooth.safety.limiter import (
     LimiterParams,
     LimiterState,
@@ -120,8 +121,8 @@ def smoother_step(params: SmootherStepParams, state: SmootherStepState, z,
         limiter, _ = limiter_step(params.limiter, limiter, output[:, 0])
         sent = limiter.sent
         output = np.stack([limiter.position, limiter.velocity, limiter.acceleration,
-                           (sent[-1] - 3 * sent[-2] + 3 * sent[-3] - sent[-4])
-                           / params.period_s**3], axis=1)
+                           fd_jerk(sent[-4], sent[-3], sent[-2], sent[-1], params.period_s)],
+                          axis=1)
     return SmootherTick(SmootherStepState(online=new_core, raw=new_raw, limiter=limiter),
                         output, triggered)
 
