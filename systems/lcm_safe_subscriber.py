@@ -10,6 +10,11 @@ message holds, and counters, a flag and the error text say what was thrown away.
 :class:`~telesmooth.systems.haptic_command_receiver.HapticCommandReceiver`) take the flag as a
 rejected message, so the robot keeps holding its last accepted command.
 
+It is a thin Drake system around the pure step :func:`telesmooth.link.inbox.inbox_step`, which
+examines the packets and keeps the window and the counts. The system itself does the I/O: its
+LCM handler (called whenever the LCM is pumped, outside any event) or its receiver's poll only
+collects the raw payloads, and its update hands them to the step and stores what it returns.
+
 It subscribes through Drake's ``DrakeLcm`` (pumped by the diagram's ``LcmInterfaceSystem``),
 through an ``lcm.LCM`` of the ``lcm`` Python package, or through a
 :class:`~telesmooth.link.udpm_receiver.UdpmReceiver`; the system pumps the last two itself at
@@ -22,63 +27,33 @@ garbage packets, 14 arrived, 7707 packets vanished); the receiver's socket is th
 sized, and it counts what the kernel drops (output ``dropped_count``).
 
 Every packet larger than ``max_message_bytes`` is refused unread (counted as undecodable), so
-a forged or oversized packet costs neither a decode nor memory beyond the bound.
+a forged or oversized packet costs no decode, and is kept only until the step that counts
+it.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from telesmooth.lcm_types import decode_exact
+from telesmooth.link.inbox import (
+    RECENT_PACKETS,
+    InboxState,
+    Packets,
+    inbox_initial_state,
+    inbox_params,
+    inbox_step,
+)
 from telesmooth.link.udpm_receiver import DEFAULT_MAX_MESSAGE_BYTES, UdpmReceiver
+from telesmooth.systems.codec_state import CodecState
 
 __all__ = ["DEFAULT_MAX_MESSAGE_BYTES", "DEFAULT_QUEUE_CAPACITY", "RECENT_PACKETS",
            "LcmSafeSubscriber", "Packets"]
 
 _logger = logging.getLogger(__name__)
-
-_FINGERPRINT_BYTES = 8
-"""lcm-gen Python types start every encoded message with an 8-byte type fingerprint."""
-
-# Layout of the discrete status state.
-_MESSAGE_COUNT, _UNDECODABLE_COUNT, _NEWEST_UNDECODABLE, _DROPPED_COUNT = range(4)
-
-
-class Packets(tuple):
-    """Raw packets ``(number, bytes)`` as an abstract state or output value: a tuple that a
-    Context's copy shares instead of copying. Drake clones abstract values at every update
-    (pydrake with ``copy.deepcopy``); the packets are immutable, and a deep copy of a
-    256-packet window at every step of the operator's process was a quarter of its CPU."""
-
-    __slots__ = ()
-
-    def __deepcopy__(self, memo):
-        return self
-
-    def __copy__(self):
-        return self
-
-
-@dataclasses.dataclass(frozen=True)
-class _Received:
-    """What has arrived on the channel so far (cumulative; replaced as a whole)."""
-
-    message_count: int = 0          # packets that decoded
-    undecodable_count: int = 0      # packets that did not
-    newest_undecodable: bool = False
-    message_bytes: bytes = b""      # the newest packet that decoded (b"": none yet)
-    last_error: str = ""            # why the newest undecodable packet did not decode
-    recent: Packets = Packets()     # the last RECENT_PACKETS raw packets, (index, bytes)
-
-
-RECENT_PACKETS = 256
-"""How many raw packets the ``packets`` output keeps (at 4 Hz, a minute of uplink; a
-receiver polled every 10 ms sees each of them)."""
 
 DEFAULT_QUEUE_CAPACITY = RECENT_PACKETS
 """Packets an ``lcm.LCM`` subscription queues between two pumps (one per simulator step):
@@ -89,67 +64,26 @@ _MAX_PUMPED_PER_STEP = RECENT_PACKETS
 what one step takes fits the ``packets`` window (the rest waits for the next step)."""
 
 
-class _Inbox:
-    """The LCM handler's side: classifies each packet and keeps a :class:`_Received`.
+class _Arrivals:
+    """The LCM handler's side: the raw payloads that arrived since the last step, in order.
 
     Like ``LcmSubscriberSystem``'s receive buffer this lives outside the Context (the handler
-    runs inside ``HandleSubscriptions``, not in an event); the system copies it into its state
-    at the next simulator step. It is a separate object so that the subscription, which lives
-    as long as the ``DrakeLcm``, does not keep the system alive.
+    runs inside ``HandleSubscriptions``, not in an event); the system's next update takes
+    them. It is a separate object so that the subscription, which lives as long as the
+    ``DrakeLcm``, does not keep the system alive.
     """
 
-    def __init__(self, channel: str, lcm_type,
-                 max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES):
-        self._channel = channel
-        self._lcm_type = lcm_type
-        self._max_message_bytes = max_message_bytes
-        self._fingerprint = lcm_type._get_packed_fingerprint()
-        # One attribute, replaced atomically, so a reader never sees half an update.
-        self.received = _Received()
+    def __init__(self):
+        self._payloads: list = []
 
     def handle(self, data: bytes) -> None:
         """The LCM handler. It is called from C (``lcm_handle``), so it must never raise."""
-        previous = self.received
-        packet = previous.message_count + previous.undecodable_count + 1
-        if len(data) > self._max_message_bytes:
-            # Refused unread: neither decoded nor kept (the window holds an empty stand-in).
-            recent = Packets((previous.recent + ((packet, b""),))[-RECENT_PACKETS:])
-            problem = (f"{len(data)} bytes, more than the {self._max_message_bytes}-byte bound "
-                       "of a message (not decoded)")
-        else:
-            recent = Packets((previous.recent + ((packet, bytes(data)),))[-RECENT_PACKETS:])
-            try:
-                problem = self._why_undecodable(bytes(data))
-            except Exception as error:  # noqa: BLE001 - nothing may escape into the C callback
-                problem = f"{type(error).__name__}: {error}"
-        if problem is None:
-            self.received = dataclasses.replace(
-                previous, message_count=previous.message_count + 1, newest_undecodable=False,
-                message_bytes=bytes(data), recent=recent)
-        else:
-            self.received = dataclasses.replace(
-                previous, undecodable_count=previous.undecodable_count + 1,
-                newest_undecodable=True, recent=recent,
-                last_error=(f"{self._channel}: packet {packet} ({len(data)} bytes) is not a "
-                            f"valid {self._lcm_type.__name__}: {problem}"))
+        self._payloads.append(data)
 
-    def _why_undecodable(self, data: bytes) -> str | None:
-        """None if ``data`` decodes as the channel's type, else the reason (for people)."""
-        try:
-            decode_exact(self._lcm_type, data)
-        # lcm-gen decoders raise ValueError (wrong fingerprint) and struct.error (short or
-        # malformed body), but a damaged string may also give UnicodeDecodeError, an absurd
-        # array length MemoryError, ...: any failure means "not a message of this type".
-        except Exception as error:  # noqa: BLE001
-            head = data[:_FINGERPRINT_BYTES]
-            if len(data) < _FINGERPRINT_BYTES:
-                return (f"shorter than the {_FINGERPRINT_BYTES}-byte type fingerprint "
-                        f"(starts {head!r})")
-            if head != self._fingerprint:
-                return (f"type fingerprint {head.hex()} is not {self._fingerprint.hex()} "
-                        "(another message type on this channel, or garbage)")
-            return f"the body does not decode ({type(error).__name__}: {error})"
-        return None
+    def take(self) -> list:
+        """The payloads since the last call, oldest first."""
+        payloads, self._payloads = self._payloads, []
+        return payloads
 
 
 class LcmSafeSubscriber(LeafSystem):
@@ -191,12 +125,15 @@ class LcmSafeSubscriber(LeafSystem):
     current time); with an ``lcm.LCM``, this system pumps it (without waiting) at the start
     of every simulator step, so a packet is seen at the first step after it arrives (the
     diagram must step often enough: the onboard receiver polls every 10 ms). A per-step
-    unrestricted update copies what has arrived into the state, so outputs change at the
+    unrestricted update hands what has arrived to the step, so outputs change at the
     first step after a packet arrives, at the same simulation time, as with
     ``LcmSubscriberSystem``. If several packets arrive between two steps only the newest
     decodable one is on ``lcm_message`` (all are counted, and all are on ``packets``). State:
-    the raw bytes of the newest good packet (the output port decodes them), the error text,
-    and [message_count, undecodable_count, message_undecodable, dropped_count].
+    :func:`~telesmooth.link.inbox.inbox_step`'s :class:`~telesmooth.link.inbox.InboxState`:
+    its counts [message_count, undecodable_count, message_undecodable, dropped_count] as one
+    vector (:class:`~telesmooth.systems.codec_state.CodecState`), and, as three abstract
+    states since no float vector holds them, the raw bytes of the newest good packet (the
+    output port decodes them), the error text and the window.
     """
 
     def __init__(self, *, channel: str, lcm_type, lcm,
@@ -239,7 +176,8 @@ class LcmSafeSubscriber(LeafSystem):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} = {value!r} must be an integer >= 1")
         self._lcm_type = lcm_type
-        self._inbox = _Inbox(channel, lcm_type, max_message_bytes)
+        self._params = inbox_params(channel, lcm_type, max_message_bytes)
+        self._arrivals = _Arrivals()
         self._pumped_lcm = None
         self._receiver = None
         self._pump_errors: set[str] = set()
@@ -249,21 +187,21 @@ class LcmSafeSubscriber(LeafSystem):
                                  f"subscriber's channel is {channel!r}")
             self._receiver = lcm
         elif hasattr(lcm, "handle_timeout") and hasattr(lcm, "subscribe"):   # lcm.LCM
-            inbox = self._inbox
-            subscription = lcm.subscribe(channel, lambda _channel, data: inbox.handle(data))
+            arrivals = self._arrivals
+            subscription = lcm.subscribe(channel, lambda _channel, data: arrivals.handle(data))
             subscription.set_queue_capacity(queue_capacity)
             self._pumped_lcm = lcm
         elif hasattr(lcm, "Subscribe"):                                     # DrakeLcm
-            lcm.Subscribe(channel, self._inbox.handle)
+            lcm.Subscribe(channel, self._arrivals.handle)
         else:
             raise ValueError(f"lcm = {lcm!r} must be a pydrake DrakeLcm or an lcm.LCM")
-        self._bytes_state = self.DeclareAbstractState(AbstractValue.Make(b""))
-        self._error_state = self.DeclareAbstractState(AbstractValue.Make(""))
-        self._packets_state = self.DeclareAbstractState(AbstractValue.Make(Packets()))
-        # [message_count, undecodable_count, message_undecodable, dropped_count (NaN: the
-        # transport does not tell)].
-        self._status_state = self.DeclareDiscreteState(
-            [0.0, 0.0, 0.0, 0.0 if self._receiver is not None else math.nan])
+        initial = inbox_initial_state(
+            dropped_count=0.0 if self._receiver is not None else math.nan)
+        # The step's InboxCounts as one vector; its bytes, error text and window (which no
+        # float vector holds) as three abstract states, in InboxState's field order.
+        self._counts = CodecState(self, initial.counts)
+        self._bytes_state, self._error_state, self._packets_state = (
+            self.DeclareAbstractState(AbstractValue.Make(value)) for value in initial[1:])
         if pump_period_s is None:
             self.DeclarePerStepUnrestrictedUpdateEvent(self._update_received)
         else:
@@ -274,19 +212,14 @@ class LcmSafeSubscriber(LeafSystem):
                                                          self._update_received)
         self._message_output = self.DeclareAbstractOutputPort(
             "lcm_message", lambda: AbstractValue.Make(lcm_type()), self._calc_lcm_message)
-        self._message_count_output = self.DeclareVectorOutputPort(
-            "message_count", 1,
-            lambda c, o: o.SetAtIndex(0, self._status(c)[_MESSAGE_COUNT]))
-        self._undecodable_count_output = self.DeclareVectorOutputPort(
-            "undecodable_count", 1,
-            lambda c, o: o.SetAtIndex(0, self._status(c)[_UNDECODABLE_COUNT]))
-        self._undecodable_output = self.DeclareVectorOutputPort(
-            "message_undecodable", 1,
-            lambda c, o: o.SetAtIndex(0, self._status(c)[_NEWEST_UNDECODABLE]))
+        self._message_count_output = self._counts.output("message_count", "message_count")
+        self._undecodable_count_output = self._counts.output("undecodable_count",
+                                                             "undecodable_count")
+        self._undecodable_output = self._counts.output("message_undecodable",
+                                                       "newest_undecodable")
         self._error_output = self.DeclareStateOutputPort("last_decode_error", self._error_state)
         self._packets_output = self.DeclareStateOutputPort("packets", self._packets_state)
-        self._dropped_output = self.DeclareVectorOutputPort(
-            "dropped_count", 1, lambda c, o: o.SetAtIndex(0, self._status(c)[_DROPPED_COUNT]))
+        self._dropped_output = self._counts.output("dropped_count", "dropped_count")
 
     def get_lcm_message_output_port(self):
         return self._message_output
@@ -309,8 +242,11 @@ class LcmSafeSubscriber(LeafSystem):
     def get_dropped_count_output_port(self):
         return self._dropped_output
 
-    def _status(self, context):
-        return context.get_discrete_state(self._status_state).get_value()
+    def inbox_state(self, context) -> InboxState:
+        """The state of :func:`~telesmooth.link.inbox.inbox_step` in ``context``."""
+        return InboxState(self._counts.get(context), *(
+            context.get_abstract_state(index).get_value()
+            for index in (self._bytes_state, self._error_state, self._packets_state)))
 
     def _calc_lcm_message(self, context, output):
         data = context.get_abstract_state(self._bytes_state).get_value()
@@ -323,7 +259,7 @@ class LcmSafeSubscriber(LeafSystem):
         return self._pumped_lcm is not None or self._receiver is not None
 
     def _pump(self) -> None:
-        """Hands the packets queued on the ``lcm.LCM`` to the inbox (at most
+        """Hands the packets queued on the ``lcm.LCM`` to the handler (at most
         ``_MAX_PUMPED_PER_STEP``), without waiting."""
         try:
             for _ in range(_MAX_PUMPED_PER_STEP):
@@ -342,22 +278,17 @@ class LcmSafeSubscriber(LeafSystem):
         dropped = math.nan
         if self._pumped_lcm is not None:
             self._pump()
-        elif self._receiver is not None:
-            for payload in self._receiver.poll(_MAX_PUMPED_PER_STEP):
-                self._inbox.handle(payload)
+        payloads = self._arrivals.take()
+        if self._receiver is not None:
+            payloads += self._receiver.poll(_MAX_PUMPED_PER_STEP)
             lost = self._receiver.counts()
             dropped = float(lost.lost) if lost.kernel_dropped is not None else math.nan
-        received = self._inbox.received
-        status = self._status(context)
-        counts = (received.message_count, received.undecodable_count)
-        same_drops = (status[_DROPPED_COUNT] == dropped
-                      or (math.isnan(dropped) and math.isnan(status[_DROPPED_COUNT])))
-        if counts == (status[_MESSAGE_COUNT], status[_UNDECODABLE_COUNT]) and same_drops:
+        before = self.inbox_state(context)
+        after = inbox_step(self._params, before, payloads, dropped)
+        if after is before:
             return EventStatus.DidNothing()
-        state.get_mutable_abstract_state(self._bytes_state).set_value(received.message_bytes)
-        state.get_mutable_abstract_state(self._error_state).set_value(received.last_error)
-        state.get_mutable_abstract_state(self._packets_state).set_value(received.recent)
-        state.get_mutable_discrete_state(self._status_state).SetFromVector(
-            [received.message_count, received.undecodable_count,
-             float(received.newest_undecodable), dropped])
+        self._counts.store(state, after.counts)
+        for index, value in zip((self._bytes_state, self._error_state, self._packets_state),
+                                after[1:]):
+            state.get_mutable_abstract_state(index).set_value(value)
         return EventStatus.Succeeded()

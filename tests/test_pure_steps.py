@@ -26,6 +26,7 @@ PURE_STEPS = {
     "joint_command_receiver.JointCommandReceiver": ("telesmooth.link.receiver",
                                                     "receiver_step"),
     "laser_tracker.LaserTracker": ("telesmooth.arms.tracker", "tracker_step"),
+    "lcm_safe_subscriber.LcmSafeSubscriber": ("telesmooth.link.inbox", "inbox_step"),
     "link_channel.LinkChannel": ("telesmooth.link.channel", "channel_step"),
     "link_guard.LinkGuard": ("telesmooth.safety.guard", "guard_step"),
     "link_monitor.LinkMonitor": ("telesmooth.link.monitor", "monitor_step"),
@@ -38,7 +39,6 @@ PURE_STEPS = {
 """System → (module, function) of its pure step."""
 
 NOT_YET = {
-    "lcm_safe_subscriber.LcmSafeSubscriber": "the packet window and its counts",
     "robot_predictor.RobotPredictor": "the copies of the onboard chain it simulates",
 }
 """System → what its callbacks still decide (to move into a pure step)."""
