@@ -23,8 +23,15 @@ how far ahead of its newest telemetry it ran). With the plant the robot really h
 clean link it is the integrators' difference (micrometres); a model that is off, or a link
 that does other than the nominal delay, shows in it.
 
-The copy's simulators live outside the Drake Context (a Context cannot hold a Simulator):
-run the diagram that holds a :class:`RobotPredictor` once, in one Simulator, as
+What the predictor decides about the telemetry (the newest sample, the last 2 s of samples),
+the robot's clock, the predictions awaiting measurement and their residuals, and what its
+outputs show is the pure step of :mod:`telesmooth.link.prediction`
+(:func:`~telesmooth.link.prediction.receive_step`,
+:func:`~telesmooth.link.prediction.record_step`), its immutable state kept in an abstract
+state of the Context beside the view. The copy's simulators are copies of a Drake diagram
+and live outside the Drake Context (a Context cannot hold a Simulator), with when they are
+built, re-synchronised, caught up and advanced: run the diagram that holds a
+:class:`RobotPredictor` once, in one Simulator, as
 :func:`~telesmooth.diagrams.teleop.MakeTeleopDiagram` does. Its outputs are computed in its
 periodic update and kept in an abstract state, so they are what the Context says.
 """
@@ -34,23 +41,34 @@ from __future__ import annotations
 import copy
 import dataclasses
 from collections.abc import Callable
-from typing import NamedTuple
 
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import InitializeParams
 from pydrake.systems.framework import LeafSystem
 
-from telesmooth.lcm_types import (
-    decode_exact,
-    lcmt_onboard_joint_status,
-    lcmt_teleop_joint_command,
+from telesmooth.lcm_types import lcmt_teleop_joint_command
+from telesmooth.link.prediction import (
+    ClockParams,
+    PredictorParams,
+    PredictorView,
+    RemoteClock,
+    Residual,
+    TelemetrySample,
+    clock_ready,
+    largest_recent,
+    prediction_now,
+    predictor_initial_state,
+    receive_step,
+    record_step,
+    take_pending,
+    telemetry_sample,
 )
 from telesmooth.systems.packet_replay import PacketLog
 from telesmooth.systems.timing import check_period
 
-__all__ = ["PredictorReplica", "PredictorView", "Residual", "RobotPredictor",
-           "TelemetrySample"]
+__all__ = ["PredictorReplica", "PredictorView", "RemoteClock", "Residual", "RobotPredictor",
+           "TelemetrySample", "telemetry_sample"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,144 +89,6 @@ class PredictorReplica:
     robot: object
     packets: PacketLog
     MakeSimulator: Callable
-
-
-class TelemetrySample(NamedTuple):
-    """One telemetry message as the predictor uses it (times in s: the sample's and the
-    message's on the onboard clock, its arrival on the predictor's)."""
-
-    sample_t_s: float
-    sent_t_s: float
-    arrival_t_s: float
-    q_link: np.ndarray
-    q_motor: np.ndarray
-    v_link: np.ndarray
-    v_motor: np.ndarray
-    tool_position_m: np.ndarray
-    guard_mode: int
-    stream_distance_rad: float
-    last_command_seq: int
-    q_commanded: np.ndarray
-
-
-class Residual(NamedTuple):
-    """One measured prediction: the instant, how far ahead of its newest telemetry it was
-    made (s), the predicted and the measured tool position (m, (3,) each) and their
-    distance (m)."""
-
-    t_s: float
-    horizon_s: float
-    predicted_m: np.ndarray
-    measured_m: np.ndarray
-    residual_m: float
-
-
-class PredictorView(NamedTuple):
-    """What the predictor's outputs show (the abstract state)."""
-
-    q_predicted: np.ndarray
-    tool_predicted: np.ndarray
-    q_received: np.ndarray
-    tool_received: np.ndarray
-    telemetry_age_s: float       # now − the newest sample's instant (inf: none yet)
-    telemetry_silence_s: float   # now − the newest message's arrival (inf: none yet)
-    residual_m: float            # the largest residual measured over the last window (nan:
-    # none yet)
-    guard_mode: float            # the robot's guard mode (telemetry), −1: none yet
-    stream_distance_rad: float
-
-
-def telemetry_sample(msg, arrival_t_s: float, num_joints: int) -> TelemetrySample | None:
-    """A decoded telemetry message as a :class:`TelemetrySample`, or None for one of another
-    arm or without its state (NaN velocities: a sender that does not know them)."""
-    if int(msg.num_joints) != num_joints:
-        return None
-    arrays = [np.array(v, dtype=float) for v in (
-        msg.joint_position_link, msg.joint_position_motor, msg.joint_velocity_link,
-        msg.joint_velocity_motor)]
-    if any(a.shape != (num_joints,) or not np.all(np.isfinite(a)) for a in arrays):
-        return None
-    return TelemetrySample(
-        sample_t_s=msg.sample_utime * 1e-6, sent_t_s=msg.utime * 1e-6,
-        arrival_t_s=float(arrival_t_s),
-        q_link=arrays[0], q_motor=arrays[1], v_link=arrays[2], v_motor=arrays[3],
-        tool_position_m=np.array(msg.tool_position_measured, dtype=float),
-        guard_mode=int(msg.guard_mode), stream_distance_rad=float(msg.stream_distance_rad),
-        last_command_seq=int(msg.last_command_seq),
-        q_commanded=np.array(msg.joint_position_commanded, dtype=float))
-
-
-class RemoteClock:
-    """The clocks of three processes, as the operator's predictor sees them.
-
-    The operator's console, the ground and the robot each run their own clock (each
-    simulation starts at its process's start). The predicted robot runs on the robot's:
-
-    * now on the robot's clock = the console's now + (the robot's time − the console's): the
-      median over the last batches the console took of (their newest message's send time −
-      the instant the console took the batch), plus half the console's period (the wait of a
-      message in its batch, on average). Messages queued while the console was busy are
-      older than their batch's newest; a median shrugs off a late batch;
-    * a packet sent at g (ground clock) reaches the robot at g + (the median acceptance −
-      send time over the last packets the telemetry names as accepted, less half a poll):
-      the copy's packet is given that send time, so that the copy's receiver takes it in
-      the poll the robot's took it.
-
-    Until the telemetry has named an accepted packet, packets wait (:meth:`ready`).
-    """
-
-    def __init__(self, *, poll_period_s: float, publish_offset_s: float,
-                 batch_period_s: float = 0.04, window: int = 50):
-        self._poll = float(poll_period_s)
-        self._publish = float(publish_offset_s)
-        self._batch = float(batch_period_s)
-        self._offsets: list[float] = []
-        self._ground_offsets: list[float] = []
-        self._window = int(window)
-        self.robot_minus_local: float | None = None
-        self.robot_minus_ground: float | None = None
-        self._accepted: dict[int, float] = {}
-        self._sent: dict[int, float] = {}
-
-    def newest(self, sample: TelemetrySample) -> None:
-        """The newest message of a batch: its send time against when it was seen."""
-        self._offsets.append(sample.sent_t_s - sample.arrival_t_s)
-        del self._offsets[:-self._window]
-        self.robot_minus_local = float(np.median(self._offsets)) + 0.5 * self._batch
-
-    def telemetry(self, sample: TelemetrySample) -> None:
-        k = sample.last_command_seq
-        if k >= 0 and k not in self._accepted:
-            # The first message that names it was published publish_offset_s after the poll
-            # that accepted it.
-            self._accepted[k] = sample.sent_t_s - self._publish
-            self._match(k)
-
-    def packet(self, seq: int, ground_t_s: float) -> None:
-        self._sent[seq] = ground_t_s
-        self._match(seq)
-
-    def _match(self, seq: int) -> None:
-        if seq in self._accepted and seq in self._sent:
-            # The median over the last packets: a ground process that runs late and catches
-            # up stamps some packets early against its steady offset (the smallest
-            # offset, taken before, put the copy's commands 0.12 s ahead of the robot's
-            # under load); acceptance falls anywhere in a poll, half a poll on average.
-            self._ground_offsets.append(self._accepted[seq] - self._sent[seq])
-            del self._ground_offsets[:-self._window]
-            self.robot_minus_ground = float(np.median(self._ground_offsets)) - 0.5 * self._poll
-
-    def ready(self) -> bool:
-        return self.robot_minus_local is not None and self.robot_minus_ground is not None
-
-    def now(self, local_t_s: float) -> float:
-        return local_t_s + self.robot_minus_local
-
-    def send_time(self, ground_t_s: float) -> float:
-        return ground_t_s + self.robot_minus_ground
-
-
-
 
 
 class RobotPredictor(LeafSystem):
@@ -286,16 +166,11 @@ class RobotPredictor(LeafSystem):
         self._factory = replica_factory
         self._n = int(num_joints)
         self._period = float(period_s)
-        self._grid = float(sample_period_s)
         self._remote = bool(remote)
-        self._clock = (RemoteClock(poll_period_s=poll_period_s, publish_offset_s=publish_offset_s,
-                                   batch_period_s=period_s) if remote else None)
         self._uplink_period = float(uplink_period_s)
         self._wall_clock = wall_clock
         self._wall_minus_sim: float | None = None
-        self._recent: list[TelemetrySample] = []   # the last seconds of telemetry
         self._ahead_stale = False
-        self._pending: list[tuple[int, float, object]] = []
         self._replica = self._synced = self._ahead = None
         self._catchup = self._spare = None
         self._catchup_from = self._ahead_horizon_from = 0.0
@@ -307,17 +182,20 @@ class RobotPredictor(LeafSystem):
         elif not remote:
             raise ValueError("RobotPredictor: initial_position_rad is needed in one process")
         self._synced_sample_t = -np.inf
-        self._last_packet_number = 0
-        self._last_uplink_number = 0
-        self._last_arrival_t = -np.inf
-        self._newest: TelemetrySample | None = None
-        self._predictions: dict[int, tuple[float, np.ndarray]] = {}
+        self._params = PredictorParams(
+            num_joints=self._n, sample_period_s=float(sample_period_s),
+            residual_window_s=float(residual_window_s),
+            residual_history=int(residual_history),
+            clock=ClockParams(float(poll_period_s), float(publish_offset_s),
+                              float(period_s)) if remote else None)
+        initial = predictor_initial_state(self._params)
+        self._last = initial
+        """The state the last update wrote (what :attr:`newest_telemetry` and :attr:`clock`
+        say after a run)."""
         self.residuals: list[Residual] = []
         """Every measured prediction, in order (the run's ``predicted.csv``)."""
         self.predictions: list[tuple[float, float, np.ndarray, np.ndarray]] = []
         """Every prediction: (instant, horizon, tool position, q_link)."""
-        self._residual_history = int(residual_history)
-        self._residual_window = float(residual_window_s)
         nan_q, nan_p = np.full(self._n, np.nan), np.full(3, np.nan)
         if self._ahead is not None:
             tool0, q0 = self._predicted(self._ahead.get_context())
@@ -328,6 +206,7 @@ class RobotPredictor(LeafSystem):
                              telemetry_silence_s=np.inf, residual_m=np.nan, guard_mode=-1.0,
                              stream_distance_rad=np.nan)
         self._view = self.DeclareAbstractState(AbstractValue.Make(view))
+        self._state = self.DeclareAbstractState(AbstractValue.Make(initial))
         self._uplink_input = self.DeclareAbstractInputPort(
             "uplink_message", AbstractValue.Make(lcmt_teleop_joint_command()))
         self._uplink_packets_input = self.DeclareAbstractInputPort(
@@ -383,26 +262,24 @@ class RobotPredictor(LeafSystem):
 
     @property
     def newest_telemetry(self) -> TelemetrySample | None:
-        return self._newest
+        return self._last.newest
 
     @property
     def clock(self) -> RemoteClock | None:
-        return self._clock
+        if self._params.clock is None:
+            return None
+        clock = self._params.clock
+        return RemoteClock(poll_period_s=clock.poll_period_s,
+                           publish_offset_s=clock.publish_offset_s,
+                           batch_period_s=clock.batch_period_s, window=clock.window,
+                           state=self._last.clock)
 
     def view(self, context) -> PredictorView:
         return context.get_abstract_state(self._view).get_value()
 
     def recent_residual(self) -> float:
         """The largest residual over the last ``residual_window_s`` (NaN before any)."""
-        if not self.residuals:
-            return float("nan")
-        newest = self.residuals[-1].t_s
-        largest = 0.0
-        for residual in reversed(self.residuals):
-            if residual.t_s < newest - self._residual_window:
-                break
-            largest = max(largest, residual.residual_m)
-        return largest
+        return largest_recent(self.residuals, self._params.residual_window_s)
 
     # -- the update -----------------------------------------------------------------------
 
@@ -414,19 +291,6 @@ class RobotPredictor(LeafSystem):
         record = robot.tracker.Record(np.array([replica_context.get_time()]), state[None, :])
         return record.tool_position_m[0], record.q_link[0]
 
-    def _decode_new(self, packets, last_number: int, lcm_type):
-        """(the newest arrival number, the new packets decoded)."""
-        decoded = []
-        for number, data in packets:
-            if number <= last_number:
-                continue
-            last_number = number
-            try:
-                decoded.append(decode_exact(lcm_type, data))
-            except Exception:  # noqa: BLE001 - garbage on a bus is nobody's message
-                continue
-        return last_number, decoded
-
     def _local_time(self, context) -> float:
         """This process's now (s): its simulated time, or with a ``wall_clock`` the wall
         clock's, counted from the simulated time of the first update."""
@@ -437,54 +301,41 @@ class RobotPredictor(LeafSystem):
             self._wall_minus_sim = wall - context.get_time()
         return wall - self._wall_minus_sim
 
-    def _ingest(self, context) -> list[TelemetrySample]:
-        """New packets into the copy's log; new telemetry decoded (in arrival order)."""
-        now = self._local_time(context)
-        self._last_packet_number, statuses = self._decode_new(
-            self._telemetry_input.Eval(context), self._last_packet_number,
-            lcmt_onboard_joint_status)
-        samples = []
-        for status in statuses:
-            sample = telemetry_sample(status, now, self._n)
-            if sample is not None:
-                samples.append(sample)
-                self._last_arrival_t = now
-                if self._clock is not None:
-                    self._clock.telemetry(sample)
-        if samples and self._clock is not None:
-            self._clock.newest(max(samples, key=lambda sample: sample.sent_t_s))
+    def _ingest(self, context):
+        """New telemetry and packets through :func:`receive_step`; the packets sent into the
+        copy's log (a copy built first if the robot is not where it was). Returns (the
+        step's state, what it received)."""
+        local = self._local_time(context)
+        uplink = self._uplink_packets_input.Eval(context) if self._remote else ()
+        step, received = receive_step(self._params, context.get_abstract_state(
+            self._state).get_value(), self._telemetry_input.Eval(context), uplink, local)
+        samples = received.samples
         if not self._remote:
             msg = self._uplink_input.Eval(context)
             if msg.seq >= 0 and msg.seq > self._replica.packets.last_seq():
                 self._replica.packets.append(msg.utime * 1e-6, copy.deepcopy(msg))
-            return samples
-        self._last_uplink_number, commands = self._decode_new(
-            self._uplink_packets_input.Eval(context), self._last_uplink_number,
-            lcmt_teleop_joint_command)
-        for msg in commands:
-            self._clock.packet(int(msg.seq), msg.utime * 1e-6)
-            self._pending.append((int(msg.seq), msg.utime * 1e-6, msg))
+            return step, received
         if samples and self._synced_sample_t == -np.inf and (
                 self._replica is None or np.max(np.abs(samples[-1].q_commanded - self._start))
                 > 1e-6):
             # The robot is not where the copy was built: a copy from its commanded pose.
             self._build(samples[-1].q_commanded)
-        if self._replica is not None and self._clock.ready():
+        if self._replica is not None and clock_ready(step.clock):
+            step, pending = take_pending(step)
             log = self._replica.packets
             ahead = self._ahead.get_context().get_time()
-            for seq, sent, msg in sorted(self._pending, key=lambda item: item[0]):
+            for seq, sent, msg in pending:
                 if seq > log.last_seq():
-                    send = max(self._clock.send_time(sent), log.last_send_time())
+                    send = max(sent + step.clock.robot_minus_ground, log.last_send_time())
                     log.append(send, _for_the_copy(msg))
                     # Heard after the look-ahead passed it: the look-ahead starts again.
                     self._ahead_stale |= send <= ahead
-            self._pending.clear()
-        return samples
+        return step, received
 
-    def _follow_telemetry(self, now: float) -> None:
+    def _follow_telemetry(self, now: float, recent) -> None:
         """Keeps the synchronised copy at the newest telemetry it may use (a little each
         update), and re-synchronises its plant there every ``resync_period_s``."""
-        sample = self._usable_sample(now)
+        sample = self._usable_sample(now, recent)
         if sample is None:
             return
         synced = self._synced.get_context()
@@ -530,63 +381,35 @@ class RobotPredictor(LeafSystem):
         due = log.last_send_time() + self._uplink_period
         return now if now > due + self._uplink_period else due
 
-    def _usable_sample(self, now: float) -> TelemetrySample | None:
-        """The newest telemetry sample the copy may be synchronised on: at most what the
-        packets known let it reach (None if none is)."""
+    def _usable_sample(self, now: float, recent) -> TelemetrySample | None:
+        """The newest telemetry sample of ``recent`` the copy may be synchronised on: at
+        most what the packets known let it reach (None if none is)."""
         limit = self._known_until(now)
-        for sample in reversed(self._recent):
+        for sample in reversed(recent):
             if sample.sample_t_s <= limit + 1e-9:
                 return sample
         return None
 
-    def _measure(self, sample: TelemetrySample) -> None:
-        """The residual of the prediction made for this sample's instant, if one was."""
-        key = int(round(sample.sample_t_s / self._grid))
-        if abs(key * self._grid - sample.sample_t_s) > 1e-6:
-            return    # a sample off the grid
-        made = self._predictions.pop(key, None)
-        if made is None:
-            return
-        horizon, tool = made
-        residual = float(np.linalg.norm(tool - sample.tool_position_m))
-        self.residuals.append(Residual(sample.sample_t_s, horizon, tool,
-                                       sample.tool_position_m.copy(), residual))
-        if len(self.residuals) > self._residual_history:
-            del self.residuals[0]
-
-    def _now(self, local_t: float) -> float | None:
-        """Now on the copy's clock (the robot's), on the sample grid; None if unknown."""
-        if self._clock is None:
-            now = local_t
-        elif self._clock.robot_minus_local is None:
-            return None
-        else:
-            now = self._clock.now(local_t)
-        # The next instant of the grid: a prediction is for an instant whose telemetry has
-        # not been taken yet (three processes on one host hear the robot within a
-        # millisecond of its publishing).
-        return self._grid * np.ceil(now / self._grid - 1e-9)
-
     def _update(self, context, state) -> None:
-        samples = self._ingest(context)
+        step, received = self._ingest(context)
+        self.residuals.extend(received.residuals)
+        if len(self.residuals) > self._params.residual_history:
+            del self.residuals[:len(self.residuals) - self._params.residual_history]
         local = self._local_time(context)
-        view = self.view(context)
-        newest = self._newest
-        for sample in samples:
-            self._measure(sample)
-            if newest is None or sample.sample_t_s > newest.sample_t_s:
-                newest = sample
-            self._recent.append(sample)
-        self._newest = newest
-        if self._recent:
-            self._recent.sort(key=lambda sample: sample.sample_t_s)
-            horizon_start = self._recent[-1].sample_t_s - 2.0
-            while self._recent and self._recent[0].sample_t_s < horizon_start:
-                del self._recent[0]
-        now = self._now(local)
-        if self._replica is None or now is None:
-            return
-        self._follow_telemetry(now)
+        now = prediction_now(self._params, step, local)
+        if self._replica is not None and now is not None:
+            tool, q, horizon = self._advance(now, step.recent)
+            self.predictions.append((now, horizon, tool, q))
+            step, view = record_step(self._params, step, now=now, horizon_s=horizon,
+                                     tool=tool, q=q, local_t_s=local, view=self.view(context))
+            state.get_mutable_abstract_state(self._view).set_value(view)
+        state.get_mutable_abstract_state(self._state).set_value(step)
+        self._last = step
+
+    def _advance(self, now: float, recent) -> tuple[np.ndarray, np.ndarray, float]:
+        """The copies brought to ``now``: (the look-ahead's tool position, its link angles,
+        how far ahead of the telemetry it was synchronised on)."""
+        self._follow_telemetry(now, recent)
         if self._catchup is None and self._ahead_stale:
             self._start_catchup()
         if self._catchup is not None:
@@ -602,24 +425,7 @@ class RobotPredictor(LeafSystem):
             self._ahead.AdvanceTo(now)
         tool, q = self._predicted(self._ahead.get_context())
         # How far ahead of the telemetry the look-ahead was synchronised on.
-        horizon = now - self._ahead_horizon_from
-        self._predictions[int(round(now / self._grid))] = (horizon, tool)
-        self.predictions.append((now, horizon, tool, q))
-        # Predictions older than the newest sample will never be measured.
-        if newest is not None:
-            stale = [k for k in self._predictions if k * self._grid < newest.sample_t_s - 1e-9]
-            for k in stale:
-                del self._predictions[k]
-        state.get_mutable_abstract_state(self._view).set_value(PredictorView(
-            q_predicted=q, tool_predicted=tool,
-            q_received=view.q_received if newest is None else newest.q_link,
-            tool_received=view.tool_received if newest is None else newest.tool_position_m,
-            telemetry_age_s=np.inf if newest is None else now - newest.sample_t_s,
-            telemetry_silence_s=local - self._last_arrival_t,
-            residual_m=self.recent_residual(),
-            guard_mode=-1.0 if newest is None else float(newest.guard_mode),
-            stream_distance_rad=(np.nan if newest is None
-                                 else newest.stream_distance_rad)))
+        return tool, q, now - self._ahead_horizon_from
 
 
 def _for_the_copy(msg):

@@ -39,7 +39,11 @@ PURE_STEPS = {
 """System → (module, function) of its pure step."""
 
 NOT_YET = {
-    "robot_predictor.RobotPredictor": "the copies of the onboard chain it simulates",
+    "robot_predictor.RobotPredictor": "when its copies of the onboard chain are built, "
+                                      "re-synchronised, caught up and advanced, and the "
+                                      "packets given to them (the telemetry, the clock, the "
+                                      "prediction ledger and the view are "
+                                      "link.prediction's receive_step and record_step)",
 }
 """System → what its callbacks still decide (to move into a pure step)."""
 
