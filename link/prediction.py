@@ -1,30 +1,42 @@
-"""The predicted robot's bookkeeping as a pure step: telemetry, the robot's clock, the measured
-predictions and what the display shows.
+"""The predicted robot as a pure step: telemetry, the robot's clock, the measured predictions,
+what its copies of the onboard chain do, and what the display shows.
 
 The ground's predicted robot (:class:`~telesmooth.systems.robot_predictor.RobotPredictor`)
-runs a copy of the onboard chain ahead of the delayed telemetry. What it decides about the
-telemetry and the predictions, without Drake, is here:
+runs copies of the onboard chain ahead of the delayed telemetry. Everything it decides is
+here, in three parts of one update:
 
-* :func:`receive_step`: the new telemetry (``lcmt_onboard_joint_status``) and, on the bus,
-  the packets the ground sent, decoded from a ``packets`` port's (arrival number, bytes)
-  pairs; the robot's clock (:class:`ClockState`: robot minus this process from the
-  telemetry's send times, robot minus ground from the packets the telemetry names as
-  accepted); each prediction measured against the sample of its instant (a
-  :class:`Residual`); the newest sample and the last 2 s of samples, by sample instant;
-* :func:`prediction_now`: now on the robot's clock, on the telemetry's sample grid;
-* :func:`record_step`: the prediction made for now (the copy's tool position and link angles,
-  computed by the system) kept until its sample arrives, and the :class:`PredictorView`.
+* :func:`receive_step`: the new telemetry (``lcmt_onboard_joint_status``) and the packets
+  the ground sent (in one process its current message; on the bus the packets heard,
+  decoded from a ``packets`` port's (arrival number, bytes) pairs); the robot's clock
+  (:class:`ClockState`: robot minus this process from the telemetry's send times, robot
+  minus ground from the packets the telemetry names as accepted); the packets given to the
+  copies' log and, on the bus, a copy built where the first telemetry says the robot is;
+  each prediction measured against the sample of its instant (a :class:`Residual`); the
+  newest sample and the last 2 s of samples, by sample instant;
+* :func:`prediction_now` and :func:`advance_step`: now on the robot's clock, on the
+  telemetry's sample grid, and what the copies do to get there: the synchronised copy
+  follows the newest telemetry it may use and is re-synchronised on it every
+  ``resync_period_s``; a stale look-ahead is caught up from it over several updates while
+  the shown one runs on;
+* :func:`record_step`: the prediction made for now (the copy's tool position and link
+  angles, which the system reads from the look-ahead after carrying out the actions) kept
+  until its sample arrives, and the :class:`PredictorView`.
+
+The copies themselves are Drake Simulators of a Drake diagram: they cannot be a value of a
+pure state. The step tracks where they are (:class:`Copies`: their times, the log's last
+packet) and returns *actions* (:class:`Build`, :class:`Append`, :class:`RestSynced`,
+:class:`AdvanceSynced`, :class:`Resync`, :class:`StartCatchup`, :class:`AdvanceCatchup`,
+:class:`Swap`, :class:`AdvanceAhead`) that the system carries out on them in order; a
+Simulator advanced to a time is at that time, so the tracked times are theirs.
 
 :class:`PredictorState` is immutable (tuples and :class:`FrozenMap`, arrays never written
 after they are made): a deep copy of it is itself. It holds telemetry samples and LCM
-messages, not a float vector: the system keeps it in an abstract state. The copies of the
-onboard chain (Drake Simulators of a Drake diagram) cannot be a value of a pure state; they
-stay with the system, which also decides (for now) when they are built, re-synchronised,
-caught up and advanced.
+messages, not a float vector: the system keeps it in an abstract state.
 """
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Iterator, Mapping, Sequence
 from typing import NamedTuple
 
@@ -36,9 +48,11 @@ from telesmooth.lcm_types import (
     lcmt_teleop_joint_command,
 )
 
-__all__ = ["ClockParams", "ClockState", "FrozenMap", "PredictorParams", "PredictorState",
-           "PredictorView", "Received", "RemoteClock", "Residual", "TelemetrySample",
-           "clock_newest", "clock_packet", "clock_ready", "clock_telemetry", "decode_new",
+__all__ = ["AdvanceAhead", "AdvanceCatchup", "AdvanceSynced", "Append", "Build", "ClockParams",
+           "ClockState", "Copies", "FrozenMap", "PredictorParams", "PredictorState",
+           "PredictorView", "Received", "RemoteClock", "RestSynced", "Resync", "Residual",
+           "StartCatchup", "Swap", "TelemetrySample", "advance_step", "clock_newest",
+           "clock_packet", "clock_ready", "clock_telemetry", "decode_new", "for_the_copy",
            "largest_recent", "predictor_initial_state", "prediction_now", "receive_step",
            "record_step", "take_pending", "telemetry_sample"]
 
@@ -299,13 +313,102 @@ class RemoteClock:
 class PredictorParams(NamedTuple):
     """The arm's joint count, the telemetry's sample period (the grid predictions are made
     on, s), the window the shown residual is the largest over (s), how many residuals the
-    run keeps, and the clock's settings (None: in one process, one clock)."""
+    run keeps, the clock's settings (None: in one process, one clock; else on the bus), how
+    often the copy is re-synchronised on the telemetry (s), how much copy-time a catch-up
+    runs per update (s), and the uplink's period (s: when the next packet is due)."""
 
     num_joints: int
     sample_period_s: float
     residual_window_s: float
     residual_history: int
     clock: ClockParams | None
+    resync_period_s: float = 0.04
+    catchup_budget_s: float = 0.12
+    uplink_period_s: float = 0.25
+
+
+class Copies(NamedTuple):
+    """Where the system's copies of the onboard chain are (their clock, s), as the step
+    directs them: ``synced`` (re-synchronised on the telemetry), ``ahead`` (run ahead to
+    now: the prediction shown), a ``catchup`` being brought up to now (None: none), and the
+    packet log they read (how many, the last seq, the last send time).
+
+    Attributes:
+        built: A copy exists (on the bus without a start pose: from the first telemetry).
+        start: The pose the copy was built at (rad, (J,)).
+        synced_t, ahead_t, catchup_t: The copies' times.
+        synced_sample_t: The instant of the sample last re-synchronised on (−inf: none).
+        catchup_from, ahead_horizon_from: The synchronised copy's time the catch-up and the
+            shown look-ahead started from.
+        ahead_stale: The look-ahead must start again (a re-synchronisation, or a packet heard
+            after it passed the packet's send time).
+        log_count, log_last_seq, log_last_send_t: The packet log's length, newest seq (−1)
+            and newest send time (−inf).
+    """
+
+    built: bool = False
+    start: np.ndarray | None = None
+    synced_t: float = 0.0
+    ahead_t: float = 0.0
+    catchup_t: float | None = None
+    synced_sample_t: float = -np.inf
+    catchup_from: float = 0.0
+    ahead_horizon_from: float = 0.0
+    ahead_stale: bool = False
+    log_count: int = 0
+    log_last_seq: int = -1
+    log_last_send_t: float = -np.inf
+
+
+class Build(NamedTuple):
+    """Build the copies at rest at ``q`` (rad), at time 0, with an empty packet log."""
+
+    q: np.ndarray
+
+
+class Append(NamedTuple):
+    """Append ``message`` (its own copy) to the copy's packet log, sent at ``send_t_s``."""
+
+    send_t_s: float
+    message: object
+
+
+class RestSynced(NamedTuple):
+    """Set the synchronised copy's time to ``t_s`` without running it (nothing sent yet)."""
+
+    t_s: float
+
+
+class AdvanceSynced(NamedTuple):
+    """Advance the synchronised copy to ``t_s``."""
+
+    t_s: float
+
+
+class Resync(NamedTuple):
+    """Set the synchronised copy's plant to the measured state of ``sample``."""
+
+    sample: TelemetrySample
+
+
+class StartCatchup(NamedTuple):
+    """A catch-up copy from the synchronised one (time, state and parameters)."""
+
+
+class AdvanceCatchup(NamedTuple):
+    """Advance the catch-up copy to ``t_s``."""
+
+    t_s: float
+
+
+class Swap(NamedTuple):
+    """The catch-up copy becomes the look-ahead shown; the old look-ahead, the spare."""
+
+
+class AdvanceAhead(NamedTuple):
+    """Advance the look-ahead to ``t_s``."""
+
+    t_s: float
 
 
 class PredictorState(NamedTuple):
@@ -323,6 +426,7 @@ class PredictorState(NamedTuple):
         last_telemetry_number, last_uplink_number: The arrival numbers read so far.
         pending: Packets heard on the bus not yet given to the copy: (seq, ground send time
             s, message), in the order heard.
+        copies: Where the copies of the onboard chain are.
     """
 
     newest: TelemetrySample | None = None
@@ -334,34 +438,51 @@ class PredictorState(NamedTuple):
     last_telemetry_number: int = 0
     last_uplink_number: int = 0
     pending: tuple[tuple[int, float, object], ...] = ()
+    copies: Copies = Copies()
 
     def __deepcopy__(self, memo):
         return self
 
 
-def predictor_initial_state(params: PredictorParams) -> PredictorState:
-    """No telemetry, no prediction; the clock unknown."""
-    return PredictorState(clock=None if params.clock is None else ClockState())
+def predictor_initial_state(params: PredictorParams, start=None) -> PredictorState:
+    """No telemetry, no prediction; the clock unknown; the copies built at ``start`` (rad,
+    (J,); None: not yet)."""
+    copies = Copies() if start is None else Copies(built=True,
+                                                   start=np.array(start, dtype=float))
+    return PredictorState(clock=None if params.clock is None else ClockState(), copies=copies)
 
 
 class Received(NamedTuple):
-    """What an update received: the new telemetry samples (arrival order) and the
-    residuals measured with them."""
+    """What an update received: the new telemetry samples (arrival order), the residuals
+    measured with them, and what the system does to its copies (:class:`Build`,
+    :class:`Append`, in order)."""
 
     samples: tuple[TelemetrySample, ...]
     residuals: tuple[Residual, ...]
+    actions: tuple = ()
 
 
 def receive_step(params: PredictorParams, state: PredictorState, telemetry_packets,
-                 uplink_packets, local_t_s: float) -> tuple[PredictorState, Received]:
-    """New telemetry and (on the bus) the ground's packets taken in at ``local_t_s``.
+                 uplink_packets, local_t_s: float,
+                 uplink_message=None) -> tuple[PredictorState, Received]:
+    """New telemetry and the ground's packets taken in at ``local_t_s``.
 
     Each valid sample sets the arrival time and goes to the clock; the batch's newest message
-    (by send time) dates the robot's clock; each packet heard goes to the clock and waits
-    (:attr:`PredictorState.pending`). Then each sample (arrival order) measures the
-    prediction made for its instant, if one was (a sample off the grid measures none), and
-    the newest sample and the window of samples follow.
+    (by send time) dates the robot's clock; on the bus each packet heard goes to the clock
+    and waits (:attr:`PredictorState.pending`). The packets go to the copy's log
+    (:func:`_to_the_copies`). Then each sample (arrival order) measures the prediction made
+    for its instant, if one was (a sample off the grid measures none), and the newest sample
+    and the window of samples follow.
     """
+    state, samples = _receive(params, state, telemetry_packets, uplink_packets, local_t_s)
+    state, actions = _to_the_copies(params, state, samples, uplink_message)
+    state, received = _take_samples(params, state, samples)
+    return state, received._replace(actions=actions)
+
+
+def _receive(params: PredictorParams, state: PredictorState, telemetry_packets,
+             uplink_packets, local_t_s: float) -> tuple[PredictorState, list]:
+    """The telemetry decoded, the clock and the packets heard followed."""
     number, statuses = decode_new(telemetry_packets, state.last_telemetry_number,
                                   lcmt_onboard_joint_status)
     samples = []
@@ -384,8 +505,59 @@ def receive_step(params: PredictorParams, state: PredictorState, telemetry_packe
             clock = clock_packet(params.clock, clock, int(msg.seq), msg.utime * 1e-6)
             pending.append((int(msg.seq), msg.utime * 1e-6, msg))
         state = state._replace(last_uplink_number=uplink, pending=tuple(pending))
-    state = state._replace(clock=clock)
-    return _take_samples(params, state, samples)
+    return state._replace(clock=clock), samples
+
+
+def _appended(copies: Copies, send_t_s: float, message) -> Copies:
+    return copies._replace(log_count=copies.log_count + 1, log_last_seq=int(message.seq),
+                           log_last_send_t=float(send_t_s))
+
+
+def _to_the_copies(params: PredictorParams, state: PredictorState, samples,
+                   uplink_message) -> tuple[PredictorState, tuple]:
+    """In one process, the ground's new packet (a seq above the log's) into the copy's log,
+    sent at its ``utime``. On the bus: a copy built at the robot's commanded pose if the
+    first telemetry says it is not where the copy was built; once the clock is known, the
+    packets heard (by seq, each above the log's) placed on the robot's clock, never before
+    the log's last; one sent before the look-ahead's time makes it stale."""
+    copies, actions = state.copies, []
+    if state.clock is None:
+        msg = uplink_message
+        if msg is not None and msg.seq >= 0 and msg.seq > copies.log_last_seq:
+            actions.append(Append(msg.utime * 1e-6, copy.deepcopy(msg)))
+            copies = _appended(copies, msg.utime * 1e-6, msg)
+        return state._replace(copies=copies), tuple(actions)
+    if samples and copies.synced_sample_t == -np.inf and (
+            not copies.built or np.max(np.abs(samples[-1].q_commanded - copies.start))
+            > 1e-6):
+        # The robot is not where the copy was built: a copy from its commanded pose.
+        actions.append(Build(samples[-1].q_commanded))
+        copies = copies._replace(built=True, start=np.array(samples[-1].q_commanded,
+                                                            dtype=float),
+                                 synced_t=0.0, ahead_t=0.0, catchup_t=None, log_count=0,
+                                 log_last_seq=-1, log_last_send_t=-np.inf)
+    if copies.built and clock_ready(state.clock):
+        state, pending = take_pending(state)
+        ahead = copies.ahead_t
+        for seq, sent, msg in pending:
+            if seq > copies.log_last_seq:
+                send = max(sent + state.clock.robot_minus_ground, copies.log_last_send_t)
+                actions.append(Append(send, for_the_copy(msg)))
+                copies = _appended(copies, send, msg)
+                # Heard after the look-ahead passed it: the look-ahead starts again.
+                copies = copies._replace(ahead_stale=copies.ahead_stale | (send <= ahead))
+    return state._replace(copies=copies), tuple(actions)
+
+
+def for_the_copy(msg):
+    """A packet as the copy's receiver takes it: the copy has no epoch, session or key (the
+    operator already trusts what it heard the ground send)."""
+    packet = copy.deepcopy(msg)
+    packet.onboard_epoch = 0
+    packet.session_id = 0
+    packet.auth_tag_size = 0
+    packet.auth_tag = b""
+    return packet
 
 
 def _take_samples(params: PredictorParams, state: PredictorState,
@@ -479,6 +651,82 @@ def prediction_now(params: PredictorParams, state: PredictorState,
     # millisecond of its publishing).
     grid = params.sample_period_s
     return grid * np.ceil(now / grid - 1e-9)
+
+
+def _known_until(params: PredictorParams, copies: Copies, now: float) -> float:
+    """Up to when (the copy's clock) the packets that reach the robot are known: in one
+    process, always; on the bus, until the next packet is due (the last heard one's
+    time + an uplink period), or now if the ground has gone quiet."""
+    if params.clock is None:
+        return np.inf
+    if copies.log_count == 0:
+        return now
+    due = copies.log_last_send_t + params.uplink_period_s
+    return now if now > due + params.uplink_period_s else due
+
+
+def _usable_sample(params: PredictorParams, state: PredictorState,
+                   now: float) -> TelemetrySample | None:
+    """The newest telemetry sample the copy may be synchronised on: at most what the
+    packets known let it reach (None if none is)."""
+    limit = _known_until(params, state.copies, now)
+    for sample in reversed(state.recent):
+        if sample.sample_t_s <= limit + 1e-9:
+            return sample
+    return None
+
+
+def _follow_telemetry(params: PredictorParams, state: PredictorState, now: float,
+                      actions: list) -> Copies:
+    """The synchronised copy kept at the newest telemetry it may use (a little each update),
+    its plant re-synchronised there every ``resync_period_s``."""
+    copies = state.copies
+    sample = _usable_sample(params, state, now)
+    if sample is None:
+        return copies
+    if params.clock is not None and copies.log_count == 0:
+        # Nothing sent yet: the copy rests until the robot's clock reads this (its clock
+        # started long before the console's).
+        if sample.sample_t_s > copies.synced_t:
+            actions.append(RestSynced(sample.sample_t_s))
+            copies = copies._replace(synced_t=sample.sample_t_s)
+    elif sample.sample_t_s > copies.synced_t:
+        actions.append(AdvanceSynced(sample.sample_t_s))
+        copies = copies._replace(synced_t=sample.sample_t_s)
+    due = sample.sample_t_s >= copies.synced_sample_t + params.resync_period_s - 1e-9
+    if due and copies.catchup_t is None and abs(copies.synced_t - sample.sample_t_s) < 1e-9:
+        # Re-synchronise: the copy at the sample's instant, with the measured state.
+        actions.append(Resync(sample))
+        copies = copies._replace(synced_sample_t=sample.sample_t_s, ahead_stale=True)
+    return copies
+
+
+def advance_step(params: PredictorParams, state: PredictorState,
+                 now: float) -> tuple[PredictorState, tuple]:
+    """What the copies do to reach ``now`` (the copy's clock): the synchronised copy follows
+    the telemetry; a stale look-ahead starts a catch-up from it, brought up to now by at
+    most ``catchup_budget_s`` of copy-time per update (a long horizon is caught up over
+    several updates instead of one late tick) while the shown look-ahead runs on, and shown
+    once it is there; the look-ahead advanced to now."""
+    actions = []
+    copies = _follow_telemetry(params, state, now, actions)
+    if copies.catchup_t is None and copies.ahead_stale:
+        actions.append(StartCatchup())
+        copies = copies._replace(catchup_t=copies.synced_t, catchup_from=copies.synced_t,
+                                 ahead_stale=False)
+    if copies.catchup_t is not None:
+        target = min(now, copies.catchup_t + params.catchup_budget_s)
+        if target > copies.catchup_t:
+            actions.append(AdvanceCatchup(target))
+            copies = copies._replace(catchup_t=target)
+        if copies.catchup_t >= now - 1e-9:
+            actions.append(Swap())
+            copies = copies._replace(ahead_t=copies.catchup_t, catchup_t=None,
+                                     ahead_horizon_from=copies.catchup_from)
+    if now > copies.ahead_t:
+        actions.append(AdvanceAhead(now))
+        copies = copies._replace(ahead_t=now)
+    return state._replace(copies=copies), tuple(actions)
 
 
 def record_step(params: PredictorParams, state: PredictorState, *, now: float,

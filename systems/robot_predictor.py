@@ -23,22 +23,23 @@ how far ahead of its newest telemetry it ran). With the plant the robot really h
 clean link it is the integrators' difference (micrometres); a model that is off, or a link
 that does other than the nominal delay, shows in it.
 
-What the predictor decides about the telemetry (the newest sample, the last 2 s of samples),
-the robot's clock, the predictions awaiting measurement and their residuals, and what its
-outputs show is the pure step of :mod:`telesmooth.link.prediction`
+Everything the predictor decides (the telemetry it keeps, the robot's clock, the
+predictions awaiting measurement and their residuals, the packets given to the copy, when
+the copy is built, re-synchronised, caught up and advanced, and what its outputs show) is
+the pure step of :mod:`telesmooth.link.prediction`
 (:func:`~telesmooth.link.prediction.receive_step`,
+:func:`~telesmooth.link.prediction.advance_step`,
 :func:`~telesmooth.link.prediction.record_step`), its immutable state kept in an abstract
-state of the Context beside the view. The copy's simulators are copies of a Drake diagram
-and live outside the Drake Context (a Context cannot hold a Simulator), with when they are
-built, re-synchronised, caught up and advanced: run the diagram that holds a
-:class:`RobotPredictor` once, in one Simulator, as
+state of the Context beside the view. The copies themselves are Drake Simulators of a Drake
+diagram, which no pure state can hold: they live on this system, outside the Drake Context
+(a Context cannot hold a Simulator), and do what the step's actions say. Run the diagram
+that holds a :class:`RobotPredictor` once, in one Simulator, as
 :func:`~telesmooth.diagrams.teleop.MakeTeleopDiagram` does. Its outputs are computed in its
 periodic update and kept in an abstract state, so they are what the Context says.
 """
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 from collections.abc import Callable
 
@@ -49,19 +50,27 @@ from pydrake.systems.framework import LeafSystem
 
 from telesmooth.lcm_types import lcmt_teleop_joint_command
 from telesmooth.link.prediction import (
+    AdvanceAhead,
+    AdvanceCatchup,
+    AdvanceSynced,
+    Append,
+    Build,
     ClockParams,
     PredictorParams,
     PredictorView,
     RemoteClock,
     Residual,
+    RestSynced,
+    Resync,
+    StartCatchup,
+    Swap,
     TelemetrySample,
-    clock_ready,
+    advance_step,
     largest_recent,
     prediction_now,
     predictor_initial_state,
     receive_step,
     record_step,
-    take_pending,
     telemetry_sample,
 )
 from telesmooth.systems.packet_replay import PacketLog
@@ -160,35 +169,32 @@ class RobotPredictor(LeafSystem):
         check_period("RobotPredictor.sample_period_s", sample_period_s)
         if resync_period_s is not None:
             check_period("RobotPredictor.resync_period_s", resync_period_s)
-        # Re-synchronising costs a run over the whole horizon; in between the look-ahead
-        # only continues (the same model, the same commands).
-        self._resync_period = float(period_s if resync_period_s is None else resync_period_s)
         self._factory = replica_factory
         self._n = int(num_joints)
         self._period = float(period_s)
         self._remote = bool(remote)
-        self._uplink_period = float(uplink_period_s)
         self._wall_clock = wall_clock
         self._wall_minus_sim: float | None = None
-        self._ahead_stale = False
         self._replica = self._synced = self._ahead = None
         self._catchup = self._spare = None
-        self._catchup_from = self._ahead_horizon_from = 0.0
-        self._catchup_budget = 3.0 * float(period_s)
-        self._start = None
+        start = None
         if initial_position_rad is not None:
             # Built now (a build takes about a second: not in the middle of a live run).
-            self._build(np.asarray(initial_position_rad, dtype=float))
+            start = np.asarray(initial_position_rad, dtype=float)
+            self._build(start)
         elif not remote:
             raise ValueError("RobotPredictor: initial_position_rad is needed in one process")
-        self._synced_sample_t = -np.inf
+        # Re-synchronising costs a run over the whole horizon; in between the look-ahead
+        # only continues (the same model, the same commands).
         self._params = PredictorParams(
             num_joints=self._n, sample_period_s=float(sample_period_s),
             residual_window_s=float(residual_window_s),
             residual_history=int(residual_history),
             clock=ClockParams(float(poll_period_s), float(publish_offset_s),
-                              float(period_s)) if remote else None)
-        initial = predictor_initial_state(self._params)
+                              float(period_s)) if remote else None,
+            resync_period_s=float(period_s if resync_period_s is None else resync_period_s),
+            catchup_budget_s=3.0 * float(period_s), uplink_period_s=float(uplink_period_s))
+        initial = predictor_initial_state(self._params, start)
         self._last = initial
         """The state the last update wrote (what :attr:`newest_telemetry` and :attr:`clock`
         say after a run)."""
@@ -234,7 +240,6 @@ class RobotPredictor(LeafSystem):
         }
 
     def _build(self, q0: np.ndarray) -> None:
-        self._start = np.array(q0, dtype=float)
         self._replica = self._factory(q0)
         self._synced = self._replica.MakeSimulator(self._replica.diagram)
         self._ahead = self._replica.MakeSimulator(self._replica.diagram)
@@ -301,104 +306,26 @@ class RobotPredictor(LeafSystem):
             self._wall_minus_sim = wall - context.get_time()
         return wall - self._wall_minus_sim
 
-    def _ingest(self, context):
-        """New telemetry and packets through :func:`receive_step`; the packets sent into the
-        copy's log (a copy built first if the robot is not where it was). Returns (the
-        step's state, what it received)."""
+    def _update(self, context, state) -> None:
+        """The step's receive, advance and record, the copies doing what it says between."""
         local = self._local_time(context)
         uplink = self._uplink_packets_input.Eval(context) if self._remote else ()
-        step, received = receive_step(self._params, context.get_abstract_state(
-            self._state).get_value(), self._telemetry_input.Eval(context), uplink, local)
-        samples = received.samples
-        if not self._remote:
-            msg = self._uplink_input.Eval(context)
-            if msg.seq >= 0 and msg.seq > self._replica.packets.last_seq():
-                self._replica.packets.append(msg.utime * 1e-6, copy.deepcopy(msg))
-            return step, received
-        if samples and self._synced_sample_t == -np.inf and (
-                self._replica is None or np.max(np.abs(samples[-1].q_commanded - self._start))
-                > 1e-6):
-            # The robot is not where the copy was built: a copy from its commanded pose.
-            self._build(samples[-1].q_commanded)
-        if self._replica is not None and clock_ready(step.clock):
-            step, pending = take_pending(step)
-            log = self._replica.packets
-            ahead = self._ahead.get_context().get_time()
-            for seq, sent, msg in pending:
-                if seq > log.last_seq():
-                    send = max(sent + step.clock.robot_minus_ground, log.last_send_time())
-                    log.append(send, _for_the_copy(msg))
-                    # Heard after the look-ahead passed it: the look-ahead starts again.
-                    self._ahead_stale |= send <= ahead
-        return step, received
-
-    def _follow_telemetry(self, now: float, recent) -> None:
-        """Keeps the synchronised copy at the newest telemetry it may use (a little each
-        update), and re-synchronises its plant there every ``resync_period_s``."""
-        sample = self._usable_sample(now, recent)
-        if sample is None:
-            return
-        synced = self._synced.get_context()
-        if self._remote and len(self._replica.packets) == 0:
-            # Nothing sent yet: the copy rests until the robot's clock reads this (its clock
-            # started long before the console's).
-            if sample.sample_t_s > synced.get_time():
-                self._synced.get_mutable_context().SetTime(sample.sample_t_s)
-                self._synced.Initialize(InitializeParams(suppress_initialization_events=True))
-        elif sample.sample_t_s > synced.get_time():
-            self._synced.AdvanceTo(sample.sample_t_s)
-        due = sample.sample_t_s >= self._synced_sample_t + self._resync_period - 1e-9
-        if due and self._catchup is None and abs(
-                self._synced.get_context().get_time() - sample.sample_t_s) < 1e-9:
-            # Re-synchronise: the copy at the sample's instant, with the measured state.
-            self._replica.robot.SetMeasuredState(
-                self._synced.get_mutable_context(), q_link=sample.q_link,
-                q_motor=sample.q_motor, v_link=sample.v_link, v_motor=sample.v_motor)
-            self._synced_sample_t = sample.sample_t_s
-            self._ahead_stale = True
-
-    def _start_catchup(self) -> None:
-        """A new look-ahead from the synchronised copy, brought up to now over the next
-        updates (:attr:`_catchup`); the shown one runs on until it is."""
-        if self._spare is None:
-            self._spare = self._replica.MakeSimulator(self._replica.diagram)
-        self._catchup, self._spare = self._spare, None
-        self._catchup.get_mutable_context().SetTimeStateAndParametersFrom(
-            self._synced.get_context())
-        self._catchup.Initialize(InitializeParams(suppress_initialization_events=True))
-        self._catchup_from = self._synced.get_context().get_time()
-        self._ahead_stale = False
-
-    def _known_until(self, now: float) -> float:
-        """Up to when (the copy's clock) the packets that reach the robot are known: in one
-        process, always; on the bus, until the next packet is due (the last heard one's
-        time + an uplink period), or now if the ground has gone quiet."""
-        if not self._remote:
-            return np.inf
-        log = self._replica.packets
-        if len(log) == 0:
-            return now
-        due = log.last_send_time() + self._uplink_period
-        return now if now > due + self._uplink_period else due
-
-    def _usable_sample(self, now: float, recent) -> TelemetrySample | None:
-        """The newest telemetry sample of ``recent`` the copy may be synchronised on: at
-        most what the packets known let it reach (None if none is)."""
-        limit = self._known_until(now)
-        for sample in reversed(recent):
-            if sample.sample_t_s <= limit + 1e-9:
-                return sample
-        return None
-
-    def _update(self, context, state) -> None:
-        step, received = self._ingest(context)
+        message = None if self._remote else self._uplink_input.Eval(context)
+        step, received = receive_step(
+            self._params, context.get_abstract_state(self._state).get_value(),
+            self._telemetry_input.Eval(context), uplink, local, message)
+        self._carry_out(received.actions)
         self.residuals.extend(received.residuals)
         if len(self.residuals) > self._params.residual_history:
             del self.residuals[:len(self.residuals) - self._params.residual_history]
         local = self._local_time(context)
         now = prediction_now(self._params, step, local)
-        if self._replica is not None and now is not None:
-            tool, q, horizon = self._advance(now, step.recent)
+        if step.copies.built and now is not None:
+            step, actions = advance_step(self._params, step, now)
+            self._carry_out(actions)
+            tool, q = self._predicted(self._ahead.get_context())
+            # How far ahead of the telemetry the look-ahead was synchronised on.
+            horizon = now - step.copies.ahead_horizon_from
             self.predictions.append((now, horizon, tool, q))
             step, view = record_step(self._params, step, now=now, horizon_s=horizon,
                                      tool=tool, q=q, local_t_s=local, view=self.view(context))
@@ -406,34 +333,34 @@ class RobotPredictor(LeafSystem):
         state.get_mutable_abstract_state(self._state).set_value(step)
         self._last = step
 
-    def _advance(self, now: float, recent) -> tuple[np.ndarray, np.ndarray, float]:
-        """The copies brought to ``now``: (the look-ahead's tool position, its link angles,
-        how far ahead of the telemetry it was synchronised on)."""
-        self._follow_telemetry(now, recent)
-        if self._catchup is None and self._ahead_stale:
-            self._start_catchup()
-        if self._catchup is not None:
-            # At most the budget of copy-time per update: a long horizon (a slow downlink)
-            # is caught up over several updates instead of one late tick.
-            target = min(now, self._catchup.get_context().get_time() + self._catchup_budget)
-            if target > self._catchup.get_context().get_time():
-                self._catchup.AdvanceTo(target)
-            if self._catchup.get_context().get_time() >= now - 1e-9:
+    def _carry_out(self, actions) -> None:
+        """The step's actions on the copies (Drake Simulators), in order."""
+        suppress = InitializeParams(suppress_initialization_events=True)
+        for action in actions:
+            if isinstance(action, Build):
+                self._build(action.q)
+            elif isinstance(action, Append):
+                self._replica.packets.append(action.send_t_s, action.message)
+            elif isinstance(action, RestSynced):
+                self._synced.get_mutable_context().SetTime(action.t_s)
+                self._synced.Initialize(suppress)
+            elif isinstance(action, AdvanceSynced):
+                self._synced.AdvanceTo(action.t_s)
+            elif isinstance(action, Resync):
+                sample = action.sample
+                self._replica.robot.SetMeasuredState(
+                    self._synced.get_mutable_context(), q_link=sample.q_link,
+                    q_motor=sample.q_motor, v_link=sample.v_link, v_motor=sample.v_motor)
+            elif isinstance(action, StartCatchup):
+                if self._spare is None:
+                    self._spare = self._replica.MakeSimulator(self._replica.diagram)
+                self._catchup, self._spare = self._spare, None
+                self._catchup.get_mutable_context().SetTimeStateAndParametersFrom(
+                    self._synced.get_context())
+                self._catchup.Initialize(suppress)
+            elif isinstance(action, AdvanceCatchup):
+                self._catchup.AdvanceTo(action.t_s)
+            elif isinstance(action, Swap):
                 self._ahead, self._spare, self._catchup = self._catchup, self._ahead, None
-                self._ahead_horizon_from = self._catchup_from
-        if now > self._ahead.get_context().get_time():
-            self._ahead.AdvanceTo(now)
-        tool, q = self._predicted(self._ahead.get_context())
-        # How far ahead of the telemetry the look-ahead was synchronised on.
-        return tool, q, now - self._ahead_horizon_from
-
-
-def _for_the_copy(msg):
-    """A packet as the copy's receiver takes it: the copy has no epoch, session or key (the
-    operator already trusts what it heard the ground send)."""
-    packet = copy.deepcopy(msg)
-    packet.onboard_epoch = 0
-    packet.session_id = 0
-    packet.auth_tag_size = 0
-    packet.auth_tag = b""
-    return packet
+            elif isinstance(action, AdvanceAhead):
+                self._ahead.AdvanceTo(action.t_s)

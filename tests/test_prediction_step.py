@@ -1,13 +1,16 @@
-"""The predicted robot's bookkeeping as a pure step (``telesmooth.link.prediction``).
+"""The predicted robot as a pure step (``telesmooth.link.prediction``).
 
 Hand-made telemetry with known answers: each prediction is measured by the sample of its
 instant (not one off the grid, not one after a newer sample dropped it), the newest sample
 and the 2 s window follow the samples' instants whatever their arrival order, the robot's
-clock is the medians the docstring states. Over random streams (reordered, off-grid and
-foreign samples, random predictions) the residual shown equals the largest residual over the
-run's whole log as ``recent_residual`` reads it (the step keeps only a suffix), and the step
-never changes the state it is given. The Drake system's outputs are the step's, run here on
-the same packets with the copy's predictions fed in.
+clock is the medians the docstring states; the copies follow the newest telemetry they may
+use (on the bus, no further than the packets known), are re-synchronised when due but not
+during a catch-up, and a catch-up runs at most its budget per update and is shown once it
+reaches now. Over random streams (reordered and off-grid samples, random predictions) the
+residual shown equals the largest residual over the run's whole log as ``recent_residual``
+reads it (the step keeps only a suffix), and the step never changes the state it is given.
+The Drake system's outputs are the step's, run here on the same packets with the copy's
+predictions fed in, and the horizons it recorded are those of the step's actions.
 """
 
 import copy
@@ -19,9 +22,14 @@ from hypothesis import strategies as st
 
 from telesmooth.lcm_types import lcmt_onboard_joint_status, lcmt_teleop_joint_command
 from telesmooth.link.prediction import (
+    AdvanceSynced,
+    Build,
     ClockParams,
     PredictorParams,
     PredictorView,
+    RestSynced,
+    Resync,
+    advance_step,
     clock_newest,
     clock_packet,
     clock_telemetry,
@@ -89,7 +97,7 @@ def test_a_prediction_is_measured_by_the_sample_of_its_instant():
     assert view.guard_mode == 0.0 and view.stream_distance_rad == 0.25 * 0.12
     # The same packets again: nothing new (arrival numbers already read).
     again, received = receive_step(PARAMS, state, telemetry.items, (), 0.3)
-    assert received == ((), ()) and again.newest is state.newest
+    assert received == ((), (), ()) and again.newest is state.newest
 
 
 def test_the_newest_and_the_window_follow_the_instants_not_the_arrivals():
@@ -138,7 +146,20 @@ def test_the_robots_clock_and_now_on_it():
     accepted = {k: _status(100.0 + 0.1 * k - 0.001).utime * 1e-6 - 0.001 for k in (1, 3)}
     ground = [accepted[1] - 7.0, accepted[3] - 7.5]
     assert state.clock.robot_minus_ground == float(np.median(ground)) - 0.005
-    assert [p[0] for p in state.pending] == [1, 3, 5]
+    # The first telemetry built the copy at its commanded pose; the clock known, the packets
+    # went to the copy in seq order, on the robot's clock, the session's fields cleared.
+    assert state.pending == () and state.copies.built and state.copies.log_count == 3
+    robot_minus_ground = state.clock.robot_minus_ground
+    state, received = receive_step(params, state, telemetry.items, uplink.items, 1.1)
+    assert received.actions == ()      # nothing new
+    first = predictor_initial_state(params)
+    _, received = receive_step(params, first, telemetry.items, uplink.items, 1.0)
+    build, *appends = received.actions
+    assert isinstance(build, Build)
+    np.testing.assert_array_equal(build.q, [0.1 * (100.3 - 0.001)] * J)
+    assert [a.message.seq for a in appends] == [1, 3, 5]
+    assert [a.send_t_s for a in appends] == [t + robot_minus_ground for t in (7.0, 7.5, 8.0)]
+    assert all(a.message.auth_tag_size == 0 and a.message.session_id == 0 for a in appends)
 
 
 def test_the_clock_functions_against_a_plain_median():
@@ -247,8 +268,9 @@ def test_the_drake_system_shows_what_the_step_computes():
     port = predictor.get_telemetry_packets_input_port()
     port.FixValue(context, ())
     simulator.Initialize()
-    params = PARAMS._replace(residual_window_s=0.3)
-    state, view = predictor_initial_state(params), predictor.view(context)
+    params = PARAMS._replace(residual_window_s=0.3, resync_period_s=0.04,
+                             catchup_budget_s=3.0 * 0.04)
+    state, view = predictor_initial_state(params, q0), predictor.view(context)
     rng = np.random.default_rng(5)
     shown, seen = [], []
     for k in range(40):
@@ -267,13 +289,19 @@ def test_the_drake_system_shows_what_the_step_computes():
             "telemetry_silence", "residual", "robot_guard_mode", "robot_stream_distance")})
     # The same packets through the step, the copy's predictions fed in.
     assert len(predictor.predictions) == 40
-    residuals = []
+    residuals, kinds = [], set()
     for k, (items, values) in enumerate(zip(seen, shown)):
         t = 0.04 * k
-        state, received = receive_step(params, state, items, (), t)
+        state, received = receive_step(params, state, items, (), t,
+                                       lcmt_teleop_joint_command())
+        # The fixed message (seq 0) goes to the copy's log once.
+        assert _kinds(received.actions) == (["Append"] if k == 0 else [])
         residuals += received.residuals
         now, horizon, tool, q = predictor.predictions[k]
         assert now == prediction_now(params, state, t)
+        state, actions = advance_step(params, state, now)
+        kinds.update(type(action).__name__ for action in actions)
+        assert horizon == now - state.copies.ahead_horizon_from
         state, view = record_step(params, state, now=now, horizon_s=horizon, tool=tool, q=q,
                                   local_t_s=t, view=view)
         for name, field in (("q_predicted", "q_predicted"), ("tool_predicted", "tool_predicted"),
@@ -283,6 +311,73 @@ def test_the_drake_system_shows_what_the_step_computes():
                             ("residual", "residual_m"), ("robot_guard_mode", "guard_mode"),
                             ("robot_stream_distance", "stream_distance_rad")):
             np.testing.assert_array_equal(values[name], np.atleast_1d(getattr(view, field)))
+    assert kinds == {"AdvanceSynced", "Resync", "StartCatchup", "AdvanceCatchup", "Swap",
+                     "AdvanceAhead"}
     assert len(residuals) == len(predictor.residuals) > 10
     assert [r.residual_m for r in residuals] == [r.residual_m for r in predictor.residuals]
     assert predictor.newest_telemetry.sample_t_s == state.newest.sample_t_s
+
+
+def _kinds(actions):
+    return [type(a).__name__ for a in actions]
+
+
+def test_the_copies_follow_the_telemetry_and_catch_up_within_the_budget():
+    params = PARAMS._replace(resync_period_s=0.04, catchup_budget_s=0.12)
+    state = predictor_initial_state(params, np.zeros(J))
+    telemetry = Packets()
+    script = [   # (now, newest sample, the actions, the times they go to)
+        (0.50, 0.20, ["AdvanceSynced", "Resync", "StartCatchup", "AdvanceCatchup",
+                      "AdvanceAhead"], [0.20, None, None, 0.32, 0.50]),
+        # Due again, but a catch-up runs: no re-synchronisation.
+        (0.54, 0.24, ["AdvanceSynced", "AdvanceCatchup", "AdvanceAhead"], [0.24, 0.44, 0.54]),
+        (0.58, 0.28, ["AdvanceSynced", "AdvanceCatchup", "AdvanceAhead"], [0.28, 0.56, 0.58]),
+        # Caught up: shown, and already at now.
+        (0.62, 0.32, ["AdvanceSynced", "AdvanceCatchup", "Swap"], [0.32, 0.62, None]),
+        (0.66, 0.36, ["AdvanceSynced", "Resync", "StartCatchup", "AdvanceCatchup",
+                      "AdvanceAhead"], [0.36, None, None, 0.48, 0.66]),
+    ]
+    sent = 0.0
+    for now, newest, kinds, times in script:
+        msgs = []
+        while sent <= newest + 1e-9:
+            msgs.append(_status(round(sent, 6)))
+            sent += GRID
+        state, _ = receive_step(params, state, telemetry.send(*msgs), (), now)
+        state, actions = advance_step(params, state, now)
+        assert _kinds(actions) == kinds
+        for action, t in zip(actions, times):
+            if t is not None:
+                assert action.t_s == pytest.approx(t, abs=1e-12)
+            if isinstance(action, Resync):
+                assert action.sample.sample_t_s == pytest.approx(newest, abs=1e-12)
+        if now == 0.62:
+            assert state.copies.ahead_horizon_from == pytest.approx(0.20, abs=1e-12)
+            assert state.copies.ahead_t == pytest.approx(0.62, abs=1e-12)
+    assert state.copies.catchup_from == pytest.approx(0.36, abs=1e-12)
+
+
+def test_on_the_bus_the_copy_waits_for_the_packets_it_knows():
+    from telesmooth.link.prediction import ClockState, Copies, PredictorState, telemetry_sample
+
+    params = PARAMS._replace(clock=ClockParams(0.01, 0.001), uplink_period_s=0.25)
+    samples = tuple(telemetry_sample(_status(round(0.1 * k, 6)), 0.0, J) for k in range(30))
+    state = PredictorState(recent=samples, newest=samples[-1],
+                           clock=ClockState(robot_minus_local=0.0, robot_minus_ground=0.0),
+                           copies=Copies(built=True, start=np.zeros(J)))
+    # Nothing sent yet: the copy rests at the newest sample up to now, without running.
+    _, actions = advance_step(params, state, 1.05)
+    assert _kinds(actions)[:2] == ["RestSynced", "Resync"] and actions[0].t_s == 1.0
+    assert isinstance(actions[0], RestSynced)
+    # A packet sent at 1.0: known until the next is due (1.25), now until then.
+    state = state._replace(copies=state.copies._replace(log_count=1, log_last_seq=0,
+                                                        log_last_send_t=1.0))
+    _, actions = advance_step(params, state, 1.4)
+    assert isinstance(actions[0], AdvanceSynced) and actions[0].t_s == pytest.approx(1.2)
+    # The ground quiet for more than two periods: known until now.
+    _, actions = advance_step(params, state, 1.6)
+    assert actions[0].t_s == pytest.approx(1.6)
+    # In one process every sample may be used.
+    local = PARAMS._replace(uplink_period_s=0.25)
+    _, actions = advance_step(local, state._replace(clock=None), 2.0)
+    assert actions[0].t_s == pytest.approx(2.9)

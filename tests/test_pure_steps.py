@@ -1,11 +1,10 @@
-"""Every stateful Drake system of ``telesmooth.systems`` is ports and a codec around a pure step,
-or is listed as not yet one, with what its callbacks still decide.
+"""Every stateful Drake system of ``telesmooth.systems`` is ports and a codec around a pure step.
 
 Read from the sources (no Drake needed): a class is *stateful* when its methods declare a
-state (``Declare…State(``). Each one is in exactly one of :data:`PURE_STEPS` (the system
-calls the named pure function, imported from a package without Drake systems, and its own
-callbacks stay short: the logic is in the step) or :data:`NOT_YET` (what remains to move, for
-a later change). A new stateful system fails here until it is put in one of them.
+state (``Declare…State(`` or ``CodecState(``). Each one is in :data:`PURE_STEPS`: the system
+calls the named pure function, imported from a module that imports no pydrake, and its own
+callbacks stay short (the logic is in the step). A new stateful system fails here until it
+is built so and listed.
 """
 
 from __future__ import annotations
@@ -34,18 +33,10 @@ PURE_STEPS = {
     "period_mean.PeriodMean": ("telesmooth.smoothing.period_mean", "period_mean_step"),
     "reduced_q_smoother.ReducedQSmoother": ("telesmooth.smoothing.smoother_step",
                                             "smoother_step"),
+    "robot_predictor.RobotPredictor": ("telesmooth.link.prediction", "receive_step"),
     "uplink.Uplink": ("telesmooth.link.uplink", "uplink_step"),
 }
 """System → (module, function) of its pure step."""
-
-NOT_YET = {
-    "robot_predictor.RobotPredictor": "when its copies of the onboard chain are built, "
-                                      "re-synchronised, caught up and advanced, and the "
-                                      "packets given to them (the telemetry, the clock, the "
-                                      "prediction ledger and the view are "
-                                      "link.prediction's receive_step and record_step)",
-}
-"""System → what its callbacks still decide (to move into a pure step)."""
 
 MAX_CALLBACK_LINES = 40
 """A thin system's longest method body, lines (ports, codec and the call: no logic)."""
@@ -75,11 +66,10 @@ def _declares_state(cls: ast.ClassDef) -> bool:
 STATEFUL = {name: (cls, tree) for name, cls, tree in _classes() if _declares_state(cls)}
 
 
-def test_every_stateful_system_is_listed_once():
-    assert set(PURE_STEPS).isdisjoint(NOT_YET)
-    assert set(STATEFUL) == set(PURE_STEPS) | set(NOT_YET), (
-        f"unlisted: {sorted(set(STATEFUL) - set(PURE_STEPS) - set(NOT_YET))}; "
-        f"listed but not stateful: {sorted(set(PURE_STEPS) | set(NOT_YET) - set(STATEFUL))}")
+def test_every_stateful_system_is_a_pure_step():
+    assert set(STATEFUL) == set(PURE_STEPS), (
+        f"unlisted: {sorted(set(STATEFUL) - set(PURE_STEPS))}; "
+        f"listed but not stateful: {sorted(set(PURE_STEPS) - set(STATEFUL))}")
 
 
 @pytest.mark.parametrize("name", sorted(PURE_STEPS))
