@@ -31,7 +31,7 @@ from telesmooth.link.udpm_receiver import DEFAULT_MAX_MESSAGE_BYTES
 
 __all__ = ["FINGERPRINT_BYTES", "InboxCounts", "InboxParams", "InboxState", "Packets",
            "RECENT_PACKETS", "inbox_initial_state", "inbox_params", "inbox_step",
-           "why_undecodable"]
+           "nothing_new", "why_undecodable"]
 
 FINGERPRINT_BYTES = 8
 """lcm-gen Python types start every encoded message with an 8-byte type fingerprint."""
@@ -157,6 +157,14 @@ def _take(params: InboxParams, state: InboxState, data: bytes) -> InboxState:
                     f"valid {params.type_name}: {problem}"))
 
 
+def nothing_new(dropped_before: float, payloads: Sequence[bytes], dropped: float) -> bool:
+    """Whether a step with ``payloads`` and the transport's ``dropped`` count changes nothing
+    after a state whose dropped count is ``dropped_before``: no payload and the same count
+    (NaN equal to NaN). A system may ask this before it reads the rest of its state."""
+    same_drops = dropped_before == dropped or (math.isnan(dropped) and math.isnan(dropped_before))
+    return not payloads and same_drops
+
+
 def inbox_step(params: InboxParams, state: InboxState, payloads: Sequence[bytes],
                dropped: float) -> InboxState:
     """The state after ``payloads`` (oldest first) and the transport's ``dropped`` count.
@@ -164,9 +172,7 @@ def inbox_step(params: InboxParams, state: InboxState, payloads: Sequence[bytes]
     Returns ``state`` itself when there is no payload and ``dropped`` equals the state's
     (NaN equal to NaN): nothing changed.
     """
-    before = state.counts.dropped_count
-    same_drops = before == dropped or (math.isnan(dropped) and math.isnan(before))
-    if not payloads and same_drops:
+    if nothing_new(state.counts.dropped_count, payloads, dropped):
         return state
     for data in payloads:
         state = _take(params, state, data)

@@ -29,8 +29,10 @@ packet) and returns *actions* (:class:`Build`, :class:`Append`, :class:`RestSync
 :class:`Swap`, :class:`AdvanceAhead`) that the system carries out on them in order; a
 Simulator advanced to a time is at that time, so the tracked times are theirs.
 
-:class:`PredictorState` is immutable (tuples and :class:`FrozenMap`, arrays never written
-after they are made): a deep copy of it is itself. It holds telemetry samples and LCM
+:class:`PredictorState` is immutable (tuples and :class:`FrozenMap`; a telemetry sample's
+arrays are read-only, the predictions' arrays and the heard packets' LCM messages are never
+written after they are made: :func:`for_the_copy` changes a copy): a deep copy of it is
+itself. It holds telemetry samples and LCM
 messages, not a float vector: the system keeps it in an abstract state.
 """
 
@@ -40,6 +42,7 @@ import copy
 from collections.abc import Iterator, Mapping, Sequence
 from typing import NamedTuple
 
+import immutables
 import numpy as np
 
 from telesmooth.lcm_types import (
@@ -61,12 +64,18 @@ WINDOW_S = 2.0
 
 
 class FrozenMap(Mapping):
-    """An immutable mapping: :meth:`set` and :meth:`without` return a new one."""
+    """An immutable mapping: :meth:`set` and :meth:`without` return a new one.
+
+    It is a persistent map (``immutables.Map``, the hash array mapped trie of Python's
+    ``contextvars``): a new version shares all but O(log n) of the old one's nodes, so that
+    adding a key costs the same after hours of a session (the clock's maps grow by a packet
+    every uplink period) as at its start. Iteration order is not insertion order.
+    """
 
     __slots__ = ("_items",)
 
     def __init__(self, items=()):
-        self._items = dict(items)
+        self._items = items if isinstance(items, immutables.Map) else immutables.Map(items)
 
     def __getitem__(self, key):
         return self._items[key]
@@ -78,23 +87,24 @@ class FrozenMap(Mapping):
         return len(self._items)
 
     def __repr__(self) -> str:
-        return f"FrozenMap({self._items!r})"
+        return f"FrozenMap({dict(self._items)!r})"
 
     def __deepcopy__(self, memo):
         return self
 
     def set(self, key, value) -> FrozenMap:
         """A copy with ``key`` → ``value`` (in place of an existing key's value)."""
-        items = dict(self._items)
-        items[key] = value
-        return FrozenMap(items)
+        return FrozenMap(self._items.set(key, value))
 
     def without(self, keys) -> FrozenMap:
-        """A copy without ``keys``."""
-        items = dict(self._items)
-        for key in keys:
-            del items[key]
-        return FrozenMap(items)
+        """A copy without ``keys`` (itself when there are none)."""
+        keys = list(keys)
+        if not keys:
+            return self
+        with self._items.mutate() as items:
+            for key in keys:
+                del items[key]
+            return FrozenMap(items.finish())
 
 
 class TelemetrySample(NamedTuple):
@@ -152,14 +162,17 @@ def telemetry_sample(msg, arrival_t_s: float, num_joints: int) -> TelemetrySampl
         msg.joint_velocity_motor)]
     if any(a.shape != (num_joints,) or not np.all(np.isfinite(a)) for a in arrays):
         return None
+    tool, commanded = (np.array(v, dtype=float) for v in (msg.tool_position_measured,
+                                                          msg.joint_position_commanded))
+    for array in (*arrays, tool, commanded):
+        array.flags.writeable = False    # a sample is part of an immutable state
     return TelemetrySample(
         sample_t_s=msg.sample_utime * 1e-6, sent_t_s=msg.utime * 1e-6,
         arrival_t_s=float(arrival_t_s),
         q_link=arrays[0], q_motor=arrays[1], v_link=arrays[2], v_motor=arrays[3],
-        tool_position_m=np.array(msg.tool_position_measured, dtype=float),
+        tool_position_m=tool,
         guard_mode=int(msg.guard_mode), stream_distance_rad=float(msg.stream_distance_rad),
-        last_command_seq=int(msg.last_command_seq),
-        q_commanded=np.array(msg.joint_position_commanded, dtype=float))
+        last_command_seq=int(msg.last_command_seq), q_commanded=commanded)
 
 
 def decode_new(packets, last_number: int, lcm_type) -> tuple[int, list]:
@@ -612,7 +625,7 @@ def _residual_window(params: PredictorParams, residuals: tuple[Residual, ...],
                 + [key * params.sample_period_s for key in ledger])
     oldest = bound - params.residual_window_s - 1e-5
     start = 0
-    while residuals[start].t_s < oldest:
+    while start < len(residuals) and residuals[start].t_s < oldest:
         start += 1
     return residuals[start:]
 

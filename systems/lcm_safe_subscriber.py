@@ -14,6 +14,10 @@ It is a thin Drake system around the pure step :func:`telesmooth.link.inbox.inbo
 examines the packets and keeps the window and the counts. The system itself does the I/O: its
 LCM handler (called whenever the LCM is pumped, outside any event) or its receiver's poll only
 collects the raw payloads, and its update hands them to the step and stores what it returns.
+As with Drake's ``LcmSubscriberSystem``, the counts and the window live in the Context and
+the payloads wait outside it: the first Context to update takes them, so drive one Simulator
+per subscriber at a time (a second Context on the same system starts from nothing and sees
+only what arrives after it is made).
 
 It subscribes through Drake's ``DrakeLcm`` (pumped by the diagram's ``LcmInterfaceSystem``),
 through an ``lcm.LCM`` of the ``lcm`` Python package, or through a
@@ -46,6 +50,7 @@ from telesmooth.link.inbox import (
     inbox_initial_state,
     inbox_params,
     inbox_step,
+    nothing_new,
 )
 from telesmooth.link.udpm_receiver import DEFAULT_MAX_MESSAGE_BYTES, UdpmReceiver
 from telesmooth.systems.codec_state import CodecState
@@ -200,6 +205,7 @@ class LcmSafeSubscriber(LeafSystem):
         # The step's InboxCounts as one vector; its bytes, error text and window (which no
         # float vector holds) as three abstract states, in InboxState's field order.
         self._counts = CodecState(self, initial.counts)
+        self._dropped_slice = self._counts.codec.field_slice("dropped_count")
         self._bytes_state, self._error_state, self._packets_state = (
             self.DeclareAbstractState(AbstractValue.Make(value)) for value in initial[1:])
         if pump_period_s is None:
@@ -283,10 +289,10 @@ class LcmSafeSubscriber(LeafSystem):
             payloads += self._receiver.poll(_MAX_PUMPED_PER_STEP)
             lost = self._receiver.counts()
             dropped = float(lost.lost) if lost.kernel_dropped is not None else math.nan
-        before = self.inbox_state(context)
-        after = inbox_step(self._params, before, payloads, dropped)
-        if after is before:
-            return EventStatus.DidNothing()
+        dropped_before = self._counts.vector(context)[self._dropped_slice][0]
+        if nothing_new(dropped_before, payloads, dropped):
+            return EventStatus.DidNothing()    # most steps: nothing to unpack
+        after = inbox_step(self._params, self.inbox_state(context), payloads, dropped)
         self._counts.store(state, after.counts)
         for index, value in zip((self._bytes_state, self._error_state, self._packets_state),
                                 after[1:]):

@@ -41,6 +41,7 @@ periodic update and kept in an abstract state, so they are what the Context says
 from __future__ import annotations
 
 import dataclasses
+import numbers
 from collections.abc import Callable
 
 import numpy as np
@@ -169,6 +170,11 @@ class RobotPredictor(LeafSystem):
         check_period("RobotPredictor.sample_period_s", sample_period_s)
         if resync_period_s is not None:
             check_period("RobotPredictor.resync_period_s", resync_period_s)
+        check_period("RobotPredictor.residual_window_s", residual_window_s)
+        if isinstance(residual_history, bool) or not isinstance(
+                residual_history, numbers.Integral) or residual_history < 0:
+            raise ValueError(f"RobotPredictor.residual_history = {residual_history!r} must be "
+                             "an integer >= 0")
         self._factory = replica_factory
         self._n = int(num_joints)
         self._period = float(period_s)

@@ -26,6 +26,7 @@ from telesmooth.link.inbox import (
     inbox_initial_state,
     inbox_params,
     inbox_step,
+    nothing_new,
 )
 from telesmooth.safety.state_codec import VectorCodec
 
@@ -193,3 +194,12 @@ def test_the_drake_subscriber_outputs_what_the_step_gives():
         assert dut.get_packets_output_port().Eval(context) == state.recent
     assert state.counts.message_count > 0 and state.counts.undecodable_count > 0
     assert len(state.recent) > WINDOW
+
+
+def test_nothing_new_is_no_payload_and_the_same_drop_count():
+    assert nothing_new(math.nan, [], math.nan)
+    assert nothing_new(3.0, [], 3.0)
+    assert not nothing_new(3.0, [], 4.0)
+    assert not nothing_new(math.nan, [], 0.0)
+    assert not nothing_new(0.0, [], math.nan)
+    assert not nothing_new(3.0, [b""], 3.0)

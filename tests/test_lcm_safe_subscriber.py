@@ -179,6 +179,28 @@ def test_the_packets_window_is_shared_not_copied_by_a_contexts_copy():
     assert visits == []
 
 
+def test_each_context_keeps_its_own_counts_and_the_first_to_update_takes_the_packets():
+    # The rule of the module docstring, as LcmSubscriberSystem's: the payloads wait outside
+    # the Context and go to whichever Context updates first; counts live in the Context.
+    harness = Harness()
+    harness.send(_command(0, [0.1, 0.2]))
+    assert harness.counts() == (1.0, 0.0, 0.0)
+    diagram = harness.simulator.get_system()
+    fresh_root = diagram.CreateDefaultContext()
+    fresh = harness.dut.GetMyContextFromRoot(fresh_root)
+    assert harness.dut.get_message_count_output_port().Eval(fresh)[0] == 0.0
+    harness.lcm.Publish(harness.channel, _command(1, [0.3, 0.4]).encode())
+    second = Simulator(diagram, fresh_root)
+    second.Initialize()
+    second.AdvanceTo(0.02)
+    assert harness.dut.get_message_count_output_port().Eval(fresh)[0] == 1.0
+    assert harness.dut.get_lcm_message_output_port().Eval(fresh).seq == 1
+    # The simulator's Context took nothing of it: its counts are its own.
+    harness.send()
+    assert harness.counts() == (1.0, 0.0, 0.0)
+    assert harness.message().seq == 0
+
+
 def test_good_packets_give_the_same_output_at_the_same_time_as_lcm_subscriber_system():
     # An oracle for the timing: Drake's subscriber, fed the same (good) packets.
     harness = Harness(with_drake_subscriber=True)
