@@ -277,6 +277,9 @@ class RobotPredictor(LeafSystem):
 
     @property
     def clock(self) -> RemoteClock | None:
+        """The robot's clock as the last update left it (None: in one process): a snapshot
+        over the immutable :class:`~telesmooth.link.prediction.ClockState`; calling its
+        methods changes the snapshot, never the predictor."""
         if self._params.clock is None:
             return None
         clock = self._params.clock
