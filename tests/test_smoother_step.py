@@ -38,7 +38,10 @@ def _run(params, samples, resets=()):
     codec = SmootherStepStateVector(params, state)
     ticks = []
     for k, z in enumerate(samples):
-        tick = smoother_step(params, codec.unpack(codec.pack(state)), z, k in resets)
+        given = codec.pack(state)
+        tick = smoother_step(params, state, z, k in resets)
+        # The step returns a new state: the one it was given still packs as it did.
+        np.testing.assert_array_equal(codec.pack(state), given)
         state = tick.state
         ticks.append(tick)
     return ticks
@@ -121,8 +124,9 @@ def test_the_state_vector_round_trip_is_exact(method):
 @settings(derandomize=True, database=None, deadline=None, max_examples=25)
 @given(stream=st.lists(st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.booleans(),
                                  st.booleans()), min_size=1, max_size=25),
-       method=st.sampled_from(["online-cks", "bmfls", "original", "online-hard"]))
+       method=st.sampled_from(["online-cks", "online-hard"]))
 def test_sigma_never_grows_and_the_output_stays_finite(stream, method):
+    # (bmfls and pass-through keep σ constant: test_bmfls_never_changes_sigma_nor_triggers.)
     params = _params(method)
     state = smoother_initial_state(params, Q0)
     for a, b, nan, reset in stream:
@@ -133,7 +137,7 @@ def test_sigma_never_grows_and_the_output_stays_finite(stream, method):
         state = tick.state
 
 
-@pytest.mark.parametrize("method", ["online-cks", "online-hard"])
+@pytest.mark.parametrize("method", ["online-cks", "online-hard", "bmfls", "original"])
 def test_the_drake_system_outputs_the_steps_tick(method):
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import ConstantVectorSource

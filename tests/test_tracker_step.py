@@ -59,13 +59,15 @@ def test_the_drake_system_holds_the_steps_sample_with_drakes_tool_point():
     tracker.Sample(context)
     q = state[:plant.num_positions()]
     measurement = tracker.get_measurement_output_port().Eval(context)
-    expected = tracker_step(tracker._params, state, 0.37, measurement[1:4])
-    np.testing.assert_array_equal(measurement, expected.measurement)
+    # The step given the tool point in closed form (the planar arm's, in its plane z = 0).
+    tool = np.append(planar_forward_kinematics(q[0::2] + q[1::2],
+                                               AIR_BEARING_ARM.link_lengths_m), 0.0)
+    expected = tracker_step(tracker._params, state, 0.37, tool)
+    np.testing.assert_allclose(measurement, expected.measurement, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(measurement[[0, *range(4, len(measurement))]],
+                                  expected.measurement[[0, *range(4, len(measurement))]])
     np.testing.assert_array_equal(tracker.get_velocity_measured_output_port().Eval(context),
                                   expected.velocity)
     np.testing.assert_array_equal(tracker.get_q_link_output_port().Eval(context),
                                   q[0::2] + q[1::2])
     assert tracker.get_sample_time_output_port().Eval(context)[0] == 0.37
-    # The tool point the system handed the step is the arm's (the planar closed form).
-    np.testing.assert_allclose(measurement[1:3], planar_forward_kinematics(
-        q[0::2] + q[1::2], AIR_BEARING_ARM.link_lengths_m), rtol=0, atol=1e-12)
