@@ -419,12 +419,13 @@ class InverseKinematicsSystem(LeafSystem):
 
     def _update(self, context, discrete_state) -> None:
         before = self._state.get(context)
-        pose = (self._pose_desired_input.Eval(context)
-                if self._pose_desired_input.HasValue(context) else None)
         enable = self._enable_input.Eval(context)[0] if self._enable_input.HasValue(context) \
             else 1.0
+        engaging = enable > 0.5     # False for NaN too: the step then reads no other input
+        pose = (self._pose_desired_input.Eval(context)
+                if engaging and self._pose_desired_input.HasValue(context) else None)
         anchor = q_anchor = None
-        if not before.engaged:   # the anchor matters only when the clutch re-engages
+        if engaging and not before.engaged:   # the anchor matters only when re-engaging
             if self._anchor_input.HasValue(context):
                 anchor = self._anchor_input.Eval(context)[0]
             if self._q_anchor_input.HasValue(context):
