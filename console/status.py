@@ -14,6 +14,7 @@ from typing import NamedTuple
 import numpy as np
 
 from telesmooth.console.input import ConsoleNotice
+from telesmooth.safety.finite_differences import finite_differences
 from telesmooth.safety.guard import GuardMode
 
 __all__ = ["StatusInputs", "fd_ratios", "status_lines"]
@@ -21,7 +22,8 @@ __all__ = ["StatusInputs", "fd_ratios", "status_lines"]
 
 class StatusInputs(NamedTuple):
     """What the status panel says (s, m, rad; NaN or inf where unknown; ``ik_failure``: why
-    the inverse kinematics holds its target, "" when it does not)."""
+    the inverse kinematics holds its target, "" when it does not; ``distance_horizon_m``: the
+    pre-simulator's horizon, beyond which it reports the horizon itself as the distance)."""
 
     enabled: bool
     stop: bool
@@ -43,6 +45,7 @@ class StatusInputs(NamedTuple):
     realtime_rate: float = math.nan
     late_ticks: int = 0
     link_timeout_s: float = 1.0
+    distance_horizon_m: float = math.inf
 
 
 def fd_ratios(sent, period_s: float, max_acceleration, max_jerk):
@@ -52,9 +55,9 @@ def fd_ratios(sent, period_s: float, max_acceleration, max_jerk):
     joints = sent.shape[1] if sent.ndim == 2 else 0
     acc, jerk = np.zeros(joints), np.zeros(joints)
     if sent.ndim == 2 and sent.shape[0] >= 3:
-        acc = np.max(np.abs(np.diff(sent, 2, axis=0)), axis=0) / period_s**2 / max_acceleration
+        acc = np.max(np.abs(finite_differences(sent, period_s, 2)), axis=0) / max_acceleration
     if sent.ndim == 2 and sent.shape[0] >= 4:
-        jerk = np.max(np.abs(np.diff(sent, 3, axis=0)), axis=0) / period_s**3 / max_jerk
+        jerk = np.max(np.abs(finite_differences(sent, period_s, 3)), axis=0) / max_jerk
     return acc, jerk
 
 
@@ -107,8 +110,9 @@ def status_lines(s: StatusInputs) -> list[str]:
     if s.collision:
         presim = "COLLISION"
     elif math.isfinite(s.min_distance_m):
-        presim = (f"{1000 * s.min_distance_m:.0f} mm clear" if s.min_distance_m < 0.9995
-                  else f"{s.min_distance_m:.1f} m clear")
+        at_least = "≥ " if s.min_distance_m >= s.distance_horizon_m else ""
+        presim = at_least + (f"{1000 * s.min_distance_m:.0f} mm clear"
+                             if s.min_distance_m < 0.9995 else f"{s.min_distance_m:.1f} m clear")
     else:
         presim = "clearance —"
     lines.append(f"{fifo}; {presim}")

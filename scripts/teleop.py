@@ -122,6 +122,7 @@ def _console_and_display(scenario, meshcat):
                               arm.num_joints, arm.joint_names, allow_inf=True),
         residual_warning_m=max(scenario.predictor.residual_warning_m,
                                5.0 * scenario.onboard.tracker.noise_m),
+        distance_horizon_m=scenario.collision_checker.distance_horizon_m,
         ik_names={status.value: status.name.lower().replace("_", " ")
                   for status in IkStatus})
 

@@ -203,7 +203,8 @@ class OperatorDisplay(LeafSystem):
 
     def __init__(self, meshcat, arm: ArmDescription, *, pose_names, period_s: float,
                  uplink_period_s: float, max_acceleration, max_jerk,
-                 residual_warning_m: float, status_period_s: float = 0.5,
+                 residual_warning_m: float, distance_horizon_m: float = math.inf,
+                 status_period_s: float = 0.5,
                  trail_points: int = 400, trail_period_s: float = 0.5,
                  clock: DisplayClock | None = None,
                  ik_names=None):
@@ -217,6 +218,7 @@ class OperatorDisplay(LeafSystem):
         self._max_acceleration = np.asarray(max_acceleration, dtype=float)
         self._max_jerk = np.asarray(max_jerk, dtype=float)
         self._residual_warning = float(residual_warning_m)
+        self._distance_horizon = float(distance_horizon_m)
         self._status_period = float(status_period_s)
         self._trail_points = int(trail_points)
         self._trail_period = float(trail_period_s)
@@ -384,6 +386,7 @@ class OperatorDisplay(LeafSystem):
             sigma=value(context, "sigma"), acceleration_ratio=acc, jerk_ratio=jerk,
             residual_m=float(value(context, "residual")[0]),
             residual_warning_m=self._residual_warning,
+            distance_horizon_m=self._distance_horizon,
             realtime_rate=self.clock.realtime_rate, late_ticks=self.clock.late_ticks)
 
     def _status(self, context) -> None:

@@ -91,6 +91,10 @@ def test_the_fifo_and_pre_simulator_line_shows_holding_collision_and_the_ik_uppe
         "FIFO HOLD; COLLISION", "IK HOLDS: JOINT LIMIT"]
     assert lines(min_distance_m=math.nan)[3] == "FIFO moving; clearance —"
     assert lines(min_distance_m=1.25)[3] == "FIFO moving; 1.2 m clear"
+    # Catches: the horizon, which the pre-simulator reports for anything farther, shown as
+    # the distance itself.
+    assert lines(min_distance_m=0.2, distance_horizon_m=0.2)[3] == "FIFO moving; ≥ 200 mm clear"
+    assert lines(min_distance_m=0.199, distance_horizon_m=0.2)[3] == "FIFO moving; 199 mm clear"
     with_ik = lines(ik_failure="unreachable")
     assert with_ik == NOMINAL_LINES[:4] + ["IK HOLDS: UNREACHABLE"] + NOMINAL_LINES[4:]
 

@@ -273,7 +273,8 @@ def test_the_displayed_fd_ratios_count_every_packet_a_hold_repeats_and_restart_a
     display = OperatorDisplay(QuietMeshcat(), AIR_BEARING_ARM_3DOF,
                               pose_names=("x_m", "y_m", "phi_rad"), period_s=0.04,
                               uplink_period_s=period, max_acceleration=a_max,
-                              max_jerk=j_max, residual_warning_m=1e-4)
+                              max_jerk=j_max, residual_warning_m=1e-4,
+                              distance_horizon_m=0.15)
     context = display.CreateDefaultContext()
 
     def send(sequence, q0, frames=3):
@@ -288,6 +289,7 @@ def test_the_displayed_fd_ratios_count_every_packet_a_hold_repeats_and_restart_a
     for k, q0 in enumerate((0.0, 0.01, 0.03)):
         send(k, q0)
     acc, jerk = send(3, 0.06)
+    assert display.status(context).distance_horizon_m == 0.15    # for "≥ 150 mm clear"
     assert acc == pytest.approx(0.01 / period**2 / 2.0, rel=1e-12)
     assert jerk == pytest.approx(0.0, abs=1e-9)
     # Held at 0.06: every 4 packets later all differences over the last packets still
